@@ -1,0 +1,582 @@
+r"""Total Lagrangian explicit dynamics of the platen compression test.
+
+The time loop (Miller et al. 2007): internal forces from the reference-configuration operators
+of :mod:`solver.kernels`, lumped masses, central differences
+
+.. math::
+
+    v^{n+1/2} = v^{n-1/2} + \Delta t^{n} M^{-1} (f_c^n - f_{int}^n), \qquad
+    u^{n+1} = u^n + \Delta t^{n+1/2} v^{n+1/2},
+
+and kinematic platen constraints. Every boundary node is a contact candidate for the two rigid
+platens, so free-surface nodes that bulge out and roll onto a platen (from about 15 %
+compression, Morriss et al. 2007) cannot pass through it; with bonded platens they stick where
+they land.
+
+Quasi-static runs. The rig tests are quasi-static, so the run only has to be slow compared with
+the sample's lowest natural period :math:`T_1`. The ramp keeps its real duration (a
+viscoelastic material sees the real test time) and the *mass* is scaled (never the time): the
+density is chosen such that :math:`T / T_1` equals ``quasi_static_ratio``, and elements whose
+own stable step is far below the typical one get extra mass (selective mass scaling). The
+platen force is then evaluated by virtual work in the static influence field :math:`w` (the
+displacement per unit travel of the linearised problem),
+
+.. math::
+
+    P = \sum_i f^{int}_i \cdot w_i - \sum_{i \in \text{contact}} f^{c}_{t,i}\, w_{t,i},
+
+which equals the platen reaction minus the virtual work :math:`\sum_i m_i a_i \cdot w_i` of
+the inertia forces; in linear elastodynamics this removes the inertia from the force exactly,
+at finite strain to first order. The raw platen reaction is reported as well.
+
+Scaling. With Poisson's ratio fixed and the ramp set relative to :math:`T_1`, the run for a
+material whose moduli are all multiplied by :math:`c` is the same run with every force times
+:math:`c`: the step count and sizes are computed from moduli normalised by the first
+material's shear modulus, and the density scales with the moduli. Hence
+:math:`F(d; \mu, \alpha, \nu) = \mu f(d; \alpha, \nu)` to rounding, which the calibration uses
+to eliminate :math:`\mu`.
+
+References
+----------
+Morriss L, Wittek A, Miller K (2008). Compression testing of very soft biological tissues
+using semi-confined configuration: a word of caution. J Biomech 41:235-238.
+doi:10.1016/j.jbiomech.2007.06.025
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Sequence
+
+import numpy as np
+
+from ._jit import njit
+from .kernels import (
+    INVERTED,
+    NOT_FINITE,
+    OK,
+    axisym_energy,
+    axisym_forces,
+    axisym_stiffening,
+    axisymmetric_operators,
+)
+from .loading import CompressionTest, travel
+from .materials import Ogden
+from .mesh import Mesh, axisymmetric_cylinder
+from .stiffness import (
+    assemble,
+    element_max_frequency_sq,
+    element_stiffness,
+    influence_field,
+    lowest_mode,
+)
+
+__all__ = ["simulate", "SimulationResult", "SolverInstability", "DEFAULT_QUASI_STATIC_RATIO"]
+
+#: Default ramp time over the lowest natural period (see the quasi-static tests).
+DEFAULT_QUASI_STATIC_RATIO = 4.0
+
+#: Contact states of a node.
+FREE, BOTTOM, TOP = 0, 1, 2
+#: Platen modes of the kernel.
+BONDED, FRICTIONLESS, COULOMB = 0, 1, 2
+_MODE = {"bonded": BONDED, "frictionless": FRICTIONLESS, "coulomb": COULOMB}
+
+
+class SolverInstability(RuntimeError):
+    """An explicit run that went unstable: where, when and why.
+
+    Attributes
+    ----------
+    reason : str
+    step : int
+    time_s : float
+    travel_mm : float
+    element : int or None
+    """
+
+    def __init__(self, reason: str, step: int, time_s: float, travel_mm: float,
+                 element: int | None = None):
+        self.reason = reason
+        self.step = step
+        self.time_s = time_s
+        self.travel_mm = travel_mm
+        self.element = element
+        where = "" if element is None else f" in element {element}"
+        super().__init__(
+            f"explicit run stopped at step {step} (t = {time_s:.6g} s, platen travel "
+            f"{travel_mm:.4f} mm): {reason}{where}"
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class SimulationResult:
+    """Force-travel curve, energies and final state of one explicit run.
+
+    Attributes
+    ----------
+    time_s, displacement_mm, force_N : ndarray, shape (n_out,)
+        Time (s), platen travel (mm), and the quasi-static platen force (N, compression
+        positive) evaluated by virtual work in the influence field (inertia removed).
+    reaction_N : ndarray, shape (n_out,)
+        Raw top-platen reaction (N), inertia of the sample included.
+    bottom_reaction_N : ndarray, shape (n_out,)
+        Reaction on the fixed bottom platen (N).
+    energy : dict of ndarray, shape (n_out,)
+        ``external_J`` (work of the platen constraints), ``internal_J`` (path integral of the
+        internal forces), ``strain_J`` (elastic energy stored in the state, long-term moduli),
+        ``hourglass_J``, ``kinetic_J``, ``friction_J`` (work of friction forces, <= 0).
+    contact_radius_mm : ndarray, shape (n_out,)
+        Current radius of the contact area on the top platen (mm).
+    mesh : Mesh
+        Reference mesh.
+    displacement_m : ndarray, shape (n_nodes, dim)
+        Final nodal displacements (m).
+    n_steps : int
+    dt_s : float
+        Initial time step (s).
+    natural_period_s : float
+        Lowest natural period of the (mass-scaled) sample (s).
+    quasi_static_ratio : float
+        Ramp time over the natural period.
+    density_kg_m3 : float
+        Density used in the run (after mass scaling).
+    added_mass_fraction : float
+        Mass added by selective scaling over the total mass.
+    wall_s : float
+        Wall-clock time of the time loop (s).
+    """
+
+    time_s: np.ndarray
+    displacement_mm: np.ndarray
+    force_N: np.ndarray
+    reaction_N: np.ndarray
+    bottom_reaction_N: np.ndarray
+    energy: dict
+    contact_radius_mm: np.ndarray
+    mesh: Mesh
+    displacement_m: np.ndarray
+    n_steps: int
+    dt_s: float
+    natural_period_s: float
+    quasi_static_ratio: float
+    density_kg_m3: float
+    added_mass_fraction: float
+    wall_s: float
+
+    @property
+    def deformed_points_m(self) -> np.ndarray:
+        """Final nodal coordinates (m)."""
+        return self.mesh.points + self.displacement_m
+
+    @property
+    def kinetic_ratio(self) -> float:
+        """Largest kinetic over stored (strain + hourglass) energy once 5 % of the travel is done."""
+        stored = self.energy["strain_J"] + self.energy["hourglass_J"]
+        later = self.displacement_mm >= 0.05 * self.displacement_mm[-1]
+        return float(np.max(self.energy["kinetic_J"][later] / stored[later]))
+
+    @property
+    def hourglass_ratio(self) -> float:
+        """Hourglass over strain energy at the end of the run."""
+        return float(self.energy["hourglass_J"][-1] / self.energy["strain_J"][-1])
+
+    def to_frame(self):
+        """The curve as a pandas DataFrame (``time_s``, ``displacement_mm``, ``force_N``, ...)."""
+        import pandas as pd
+
+        data = {"time_s": self.time_s, "displacement_mm": self.displacement_mm,
+                "force_N": self.force_N, "reaction_N": self.reaction_N,
+                "bottom_reaction_N": self.bottom_reaction_N,
+                "contact_radius_mm": self.contact_radius_mm}
+        data.update(self.energy)
+        return pd.DataFrame(data)
+
+
+# ====================================================================== JIT time loop
+@njit
+def _nodal_update(
+    u,  # (n_nodes, dim) displacement at t_n, replaced by u^{n+1}
+    v,  # (n_nodes, dim) velocity v^{n-1/2}, replaced by v^{n+1/2}
+    f_int,  # (n_nodes, dim) internal forces at t_n
+    f_c,  # (n_nodes, dim) output: constraint forces at t_n
+    mass,  # (n_nodes,)
+    X,  # (n_nodes, dim) reference coordinates (m)
+    fix_tangent,  # (n_nodes,) bool: tangential DOFs held (axis of symmetry)
+    state,  # (n_nodes,) int8 contact state FREE/BOTTOM/TOP (updated)
+    glued,  # (n_nodes,) bool: bonded face nodes, never released
+    candidate,  # (n_nodes,) bool: may come into contact
+    anchor,  # (n_nodes, dim) tangential position held while sticking (updated)
+    mode,  # BONDED / FRICTIONLESS / COULOMB
+    mu_f,  # friction coefficient
+    z_top,  # height of the top platen at t_{n+1} (m)
+    dt,  # step t_n -> t_{n+1} (s)
+    dt_avg,  # (dt_prev + dt) / 2 (s)
+    energy,  # (3,) accumulated internal work, constraint work, friction work (J)
+):
+    """Central-difference update of every node with kinematic platen constraints."""
+    n_nodes, dim = u.shape
+    nz = dim - 1
+    w_int = 0.0
+    w_c = 0.0
+    w_f = 0.0
+    for i in range(n_nodes):
+        m = mass[i]
+        scale = dt * dt_avg / m  # displacement per unit force over this step
+        # trial (unconstrained) update
+        for a in range(dim):
+            f_c[i, a] = 0.0
+        zt = u[i, nz] + dt * (v[i, nz] - dt_avg * f_int[i, nz] / m)
+        z_new = X[i, nz] + zt
+        st = state[i]
+        if st == FREE and candidate[i]:
+            if z_new < 0.0:
+                st = BOTTOM
+            elif z_new > z_top:
+                st = TOP
+            if st != FREE:
+                for a in range(nz):
+                    anchor[i, a] = u[i, a] + dt * (v[i, a] - dt_avg * f_int[i, a] / m)
+        uz_next = zt
+        if st != FREE:
+            target = -X[i, nz] if st == BOTTOM else z_top - X[i, nz]
+            fz = (target - zt) / scale
+            # release a node the platen would have to pull (no adhesion off the glued faces)
+            if not glued[i] and ((st == BOTTOM and fz < 0.0) or (st == TOP and fz > 0.0)):
+                st = FREE
+            else:
+                uz_next = target
+                f_c[i, nz] = fz
+        state[i] = st
+        # tangential directions
+        fn = abs(f_c[i, nz])
+        trial_t = 0.0
+        stick_t = 0.0
+        for a in range(nz):
+            ut = u[i, a] + dt * (v[i, a] - dt_avg * f_int[i, a] / m)
+            if fix_tangent[i]:
+                f_c[i, a] = -ut / scale
+            elif st != FREE and mode != FRICTIONLESS:
+                f_c[i, a] = (anchor[i, a] - ut) / scale
+            trial_t += f_c[i, a] * f_c[i, a]
+        if st != FREE and mode == COULOMB and not fix_tangent[i]:
+            stick_t = math.sqrt(trial_t)
+            if stick_t > mu_f * fn:  # slip: friction at its limit, against the trial slip
+                ratio = mu_f * fn / stick_t
+                for a in range(nz):
+                    f_c[i, a] *= ratio
+        # apply: u^{n+1} = trial + scale f_c ; v^{n+1/2} = (u^{n+1} - u^n) / dt
+        for a in range(dim):
+            v_old = v[i, a]
+            v_new = v_old - dt_avg * (f_int[i, a] - f_c[i, a]) / m
+            u[i, a] += dt * v_new
+            v[i, a] = v_new
+            delta = 0.5 * dt_avg * (v_new + v_old)
+            w_int += f_int[i, a] * delta
+            w_c += f_c[i, a] * delta
+            if a < nz and st != FREE and mode == COULOMB:
+                w_f += f_c[i, a] * delta
+        if st != FREE and mode == COULOMB and stick_t > mu_f * fn:
+            for a in range(nz):
+                anchor[i, a] = u[i, a]
+    energy[0] += w_int
+    energy[1] += w_c
+    energy[2] += w_f
+
+
+@njit
+def _advance_axisym(
+    t_stop, t, dt, dt_prev, kind, T, D, t_table, d_table, H,
+    u, v, f_int, f_c, mass, X, fix_tangent, state, glued, candidate, anchor, mode, mu_f,
+    conn, bbar, hbar, vol, gamma, k_hg, mat, mu, alpha, K, g, decay, gain, s_prev, hist,
+    u_eval, energy,
+):
+    """Step the axisymmetric model until the last force evaluation reaches ``t_stop``.
+
+    Returns
+    -------
+    status, element : int
+        Kernel status and offending element (see :mod:`solver.kernels`).
+    t_eval : float
+        Time of the last force evaluation (s); ``u_eval``, ``f_int`` and ``f_c`` hold that
+        state on return.
+    t, dt_prev : float
+        Time and step size to continue from.
+    steps : int
+        Steps taken.
+    """
+    steps = 0
+    t_eval = t
+    while True:
+        status, elem = axisym_forces(u, conn, bbar, hbar, vol, gamma, k_hg, mat, mu, alpha, K,
+                                     g, decay, gain, s_prev, hist, True, f_int)
+        if status != OK:
+            return status, elem, t, t, dt_prev, steps
+        u_eval[:] = u
+        t_eval = t
+        z_top = H - travel(t + dt, kind, T, D, t_table, d_table)
+        _nodal_update(u, v, f_int, f_c, mass, X, fix_tangent, state, glued, candidate, anchor,
+                      mode, mu_f, z_top, dt, 0.5 * (dt_prev + dt), energy)
+        dt_prev = dt
+        t = t + dt
+        steps += 1
+        if t_eval >= t_stop - 0.5 * dt:
+            return OK, -1, t_eval, t, dt_prev, steps
+
+
+# ====================================================================== set-up
+def _material_tables(materials: Sequence[Ogden], n_mat: int):
+    n_terms = max(m.n_terms for m in materials)
+    n_prony = max(0 if m.prony is None else len(m.prony.g) for m in materials)
+    mu = np.zeros((n_mat, n_terms))
+    mu_lt = np.zeros((n_mat, n_terms))
+    alpha = np.ones((n_mat, n_terms))
+    K = np.zeros(n_mat)
+    g = np.zeros((n_mat, n_prony))
+    tau = np.ones((n_mat, n_prony))
+    for k, m in enumerate(materials):
+        mu_k, alpha_k, K_k, g_k, tau_k = m.kernel_arrays()
+        mu[k, : m.n_terms] = mu_k
+        mu_lt[k, : m.n_terms] = m.mu_Pa
+        alpha[k, : m.n_terms] = alpha_k
+        K[k] = K_k
+        g[k, : len(g_k)] = g_k
+        tau[k, : len(tau_k)] = tau_k
+    return mu, mu_lt, alpha, K, g, tau
+
+
+def _prony_factors(tau, dt):
+    """Decay exp(-dt/tau) and gain (1 - exp(-dt/tau)) / (dt/tau) of the Prony recursion."""
+    x = dt / tau
+    return np.ascontiguousarray(np.exp(-x)), np.ascontiguousarray(-np.expm1(-x) / x)
+
+
+def simulate(
+    material: Ogden | Sequence[Ogden],
+    test: CompressionTest | None = None,
+    mesh: Mesh | None = None,
+    *,
+    quasi_static_ratio: float = DEFAULT_QUASI_STATIC_RATIO,
+    n_out: int = 61,
+    hourglass: float = 0.1,
+    mass_scaling: bool = True,
+    mass_scaling_quantile: float = 0.1,
+    dt_safety: float = 0.8,
+) -> SimulationResult:
+    """Run one explicit compression test and return its force-travel curve.
+
+    Parameters
+    ----------
+    material : Ogden or sequence of Ogden
+        The sample's material, or one per material index of the mesh (layers).
+    test : CompressionTest, optional
+        Geometry, travel, rate and platen condition; the default bonded 30 % test.
+    mesh : Mesh, optional
+        An axisymmetric mesh of the test's cylinder; default
+        :func:`solver.mesh.axisymmetric_cylinder` of the test's size.
+    quasi_static_ratio : float
+        Ramp time over the sample's lowest natural period, reached by mass scaling.
+    n_out : int
+        Number of output points along the ramp (>= 2), at equal travel increments.
+    hourglass : float
+        Hourglass stiffness coefficient :math:`\\kappa` (times the shear modulus).
+    mass_scaling : bool
+        ``True``: scale the density to reach ``quasi_static_ratio`` (and add mass to the
+        smallest elements). ``False``: use the material density and the real ramp time as
+        they are (slow for slow ramps).
+    mass_scaling_quantile : float
+        Elements whose stable step is below this quantile of all elements' steps get extra
+        mass to reach it.
+    dt_safety : float
+        Time step over the stable bound.
+
+    Returns
+    -------
+    SimulationResult
+
+    Raises
+    ------
+    SolverInstability
+        If an element inverts, a force becomes NaN or infinite, or the kinetic energy blows
+        up; the message names the step, time, travel and element.
+    """
+    test = CompressionTest() if test is None else test
+    if mesh is None:
+        mesh = axisymmetric_cylinder(test.diameter_mm, test.height_mm)
+    if mesh.cell_type != "quad":
+        raise NotImplementedError(f"simulate() runs axisymmetric quad meshes; got "
+                                  f"{mesh.cell_type!r}")
+    if not (math.isclose(2e3 * mesh.radius_m, test.diameter_mm, rel_tol=1e-6)
+            and math.isclose(1e3 * mesh.height_m, test.height_mm, rel_tol=1e-6)):
+        raise ValueError(
+            f"mesh is {2e3 * mesh.radius_m:.4g} x {1e3 * mesh.height_m:.4g} mm but the test "
+            f"sample is {test.diameter_mm:.4g} x {test.height_mm:.4g} mm")
+    materials = [material] if isinstance(material, Ogden) else list(material)
+    n_mat = int(mesh.cell_material.max()) + 1
+    if len(materials) < n_mat:
+        raise ValueError(f"mesh has {n_mat} materials (layers) but {len(materials)} given")
+    if not n_out >= 2:
+        raise ValueError(f"n_out={n_out} must be at least 2")
+    if not quasi_static_ratio > 0:
+        raise ValueError(f"quasi_static_ratio={quasi_static_ratio} must be positive")
+
+    ops = axisymmetric_operators(mesh.points, mesh.cells)
+    mu, mu_lt, alpha, K, g, tau = _material_tables(materials, n_mat)
+    mat = mesh.cell_material
+    mu_ref = materials[0].mu0_Pa
+    n_nodes, dim = mesh.points.shape
+
+    # --- normalised (unit shear modulus, unit density) linear problem
+    shear_inst = mu.sum(axis=1)[mat] / mu_ref
+    shear_lt = mu_lt.sum(axis=1)[mat] / mu_ref
+    bulk = K[mat] / mu_ref
+    k_hg_unit = hourglass * shear_lt * ops.gamma_scale
+    Ke_inst = element_stiffness(ops, shear_inst, bulk, k_hg_unit)
+    omega2_e = element_max_frequency_sq(Ke_inst, ops.node_volume)  # unit density
+    if mass_scaling:
+        dt_e = 2.0 / np.sqrt(omega2_e)
+        target = np.quantile(dt_e, mass_scaling_quantile)
+        scale_e = np.maximum(1.0, (target / dt_e) ** 2)
+    else:
+        scale_e = np.ones(len(omega2_e))
+    omega2_e = omega2_e / scale_e
+    node_mass_unit = np.zeros(n_nodes)
+    np.add.at(node_mass_unit, mesh.cells, ops.node_volume * scale_e[:, None])
+    plain_mass = np.zeros(n_nodes)
+    np.add.at(plain_mass, mesh.cells, ops.node_volume)
+    added_mass_fraction = float(node_mass_unit.sum() / plain_mass.sum() - 1.0)
+
+    sets = mesh.node_sets()
+    bonded = test.platen == "bonded"
+    constrained = np.zeros((n_nodes, dim), dtype=bool)
+    constrained[sets["axis"], 0] = True
+    constrained[sets["top"] | sets["bottom"], 1] = True
+    if bonded:
+        constrained[sets["top"] | sets["bottom"], 0] = True
+    prescribed = np.zeros((n_nodes, dim))
+    prescribed[sets["top"], 1] = -1.0  # unit travel of the top platen
+    Ke_lt = element_stiffness(ops, shear_lt, bulk, k_hg_unit)
+    K_lt = assemble(mesh.cells, Ke_lt, n_nodes, dim)
+    free = ~constrained.ravel()
+    omega2_1 = lowest_mode(K_lt, np.repeat(node_mass_unit, dim), free)
+    w = influence_field(K_lt, free, prescribed.ravel()).reshape(n_nodes, dim)
+
+    T = test.ramp_time_s
+    if mass_scaling:
+        rho_ratio = omega2_1 * (T / (2.0 * np.pi * quasi_static_ratio)) ** 2
+    else:
+        rho_ratio = materials[0].density_kg_m3 / mu_ref
+    density = rho_ratio * mu_ref
+    natural_period = 2.0 * np.pi * math.sqrt(rho_ratio / omega2_1)
+    dt_stable = 2.0 * math.sqrt(rho_ratio / omega2_e.max())
+    n_steps_plan = max(1, math.ceil(T / (dt_safety * dt_stable)))
+    dt = T / n_steps_plan
+
+    # --- physical arrays
+    mass = np.ascontiguousarray(density * node_mass_unit)
+    k_hg = np.ascontiguousarray(mu_ref * k_hg_unit)
+    share = mu / mu.sum(axis=1, keepdims=True)
+    k_ratio = K / mu.sum(axis=1)
+    kind, T_ramp, D, t_table, d_table = test.history()
+    H = mesh.height_m
+    X = mesh.points
+    u = np.zeros((n_nodes, dim))
+    v = np.ascontiguousarray(test.initial_rate_m_per_s() * w)
+    f_int = np.zeros((n_nodes, dim))
+    f_c = np.zeros((n_nodes, dim))
+    u_eval = np.zeros((n_nodes, dim))
+    state = np.zeros(n_nodes, dtype=np.int8)
+    state[sets["bottom"]] = BOTTOM
+    state[sets["top"]] = TOP
+    glued = (sets["top"] | sets["bottom"]) if bonded else np.zeros(n_nodes, dtype=bool)
+    candidate = mesh.boundary_nodes()
+    anchor = np.zeros((n_nodes, dim))
+    fix_tangent = np.ascontiguousarray(sets["axis"])
+    s_prev = np.zeros((mesh.n_cells, 4))
+    hist = np.zeros((mesh.n_cells, g.shape[1], 4))
+    decay, gain = _prony_factors(tau, dt)
+    energy_acc = np.zeros(3)
+    kinetic0 = 0.5 * float(np.einsum("n,na,na->", mass, v, v))
+    stiffening = np.zeros(mesh.n_cells)
+
+    times = test.output_times(n_out)
+    out = {k: np.zeros(n_out) for k in ("time_s", "d", "force", "reaction", "bottom",
+                                          "external_J", "internal_J", "strain_J",
+                                          "hourglass_J", "kinetic_J", "friction_J", "radius")}
+    t = 0.0
+    dt_prev = 0.0
+    steps = 0
+    start = time.perf_counter()
+    for k, t_stop in enumerate(times):
+        status, elem, t_eval, t, dt_prev, n = _advance_axisym(
+            t_stop, t, dt, dt_prev, kind, T_ramp, D, t_table, d_table, H,
+            u, v, f_int, f_c, mass, X, fix_tangent, state, glued, candidate, anchor,
+            _MODE[test.platen], float(test.friction),
+            mesh.cells, ops.bbar, ops.hbar, ops.volume, ops.gamma, k_hg, mat, mu, alpha, K,
+            g, decay, gain, s_prev, hist, u_eval, energy_acc)
+        steps += n
+        if status != OK:
+            reason = {INVERTED: "inverted element (J <= 0)",
+                      NOT_FINITE: "non-finite stress (NaN or inf)"}[status]
+            d_mm = 1e3 * travel(t_eval, kind, T_ramp, D, t_table, d_table)
+            raise SolverInstability(reason, steps, t_eval, d_mm, elem)
+        d = travel(t_eval, kind, T_ramp, D, t_table, d_table)
+        _record(out, k, t_eval, d, u_eval, v, f_int, f_c, state, w, mass, energy_acc, X,
+                (mesh.cells, ops.bbar, ops.hbar, ops.volume, ops.gamma, k_hg, mat, mu_lt,
+                 alpha, K))
+        kinetic, external = out["kinetic_J"][k], out["external_J"][k]
+        if not np.isfinite(u).all() or not np.isfinite(kinetic):
+            raise SolverInstability("non-finite displacement or kinetic energy", steps, t_eval,
+                                    1e3 * d, int(np.argmax(~np.isfinite(u).all(axis=1))))
+        if kinetic > 10.0 * (abs(external) + kinetic0) and kinetic > 0.0:
+            node = int(np.argmax(np.einsum("na,na->n", v, v) * mass))
+            elem = int(np.flatnonzero((mesh.cells == node).any(axis=1))[0])
+            raise SolverInstability(
+                f"energy blow-up: kinetic energy {kinetic:.3g} J exceeds ten times the platen "
+                f"work plus the initial kinetic energy, {abs(external) + kinetic0:.3g} J "
+                f"(fastest node {node})", steps, t_eval, 1e3 * d, elem)
+        # re-check the stable step as elements shorten and the material stiffens
+        axisym_stiffening(u, mesh.cells, ops.bbar, ops.hbar, mat, alpha, share, k_ratio,
+                          stiffening)
+        dt_now = dt_safety * 2.0 * math.sqrt(rho_ratio / np.max(omega2_e * stiffening))
+        if dt > dt_now and t < T:
+            remaining = T - t
+            dt = remaining / math.ceil(remaining / dt_now)
+            decay, gain = _prony_factors(tau, dt)
+    wall = time.perf_counter() - start
+
+    energy = {key: out[key] for key in ("external_J", "internal_J", "strain_J", "hourglass_J",
+                                        "kinetic_J", "friction_J")}
+    return SimulationResult(
+        time_s=out["time_s"], displacement_mm=1e3 * out["d"], force_N=out["force"],
+        reaction_N=out["reaction"], bottom_reaction_N=out["bottom"], energy=energy,
+        contact_radius_mm=1e3 * out["radius"], mesh=mesh, displacement_m=u_eval.copy(),
+        n_steps=steps, dt_s=T / n_steps_plan, natural_period_s=natural_period,
+        quasi_static_ratio=T / natural_period, density_kg_m3=density,
+        added_mass_fraction=added_mass_fraction, wall_s=wall)
+
+
+def _record(out, k, t_eval, d, u, v, f_int, f_c, state, w, mass, energy_acc, X, energy_args):
+    """Store output point ``k``: forces by virtual work and reaction, energies, contact."""
+    top = state == TOP
+    bottom = state == BOTTOM
+    contact = top | bottom
+    wk = w.copy()
+    wk[top, -1] = -1.0
+    wk[bottom, -1] = 0.0
+    tangential = np.einsum("na,na->", f_c[contact, :-1], wk[contact, :-1])
+    out["time_s"][k] = t_eval
+    out["d"][k] = d
+    out["force"][k] = np.einsum("na,na->", f_int, wk) - tangential
+    out["reaction"][k] = -f_c[top, -1].sum()
+    out["bottom"][k] = f_c[bottom, -1].sum()
+    strain, hourglass = axisym_energy(u, *energy_args)
+    out["strain_J"][k] = strain
+    out["hourglass_J"][k] = hourglass
+    out["kinetic_J"][k] = 0.5 * np.einsum("n,na,na->", mass, v, v)
+    out["internal_J"][k] = energy_acc[0]
+    out["external_J"][k] = energy_acc[1]
+    out["friction_J"][k] = energy_acc[2]
+    out["radius"][k] = (X[top, 0] + u[top, 0]).max() if top.any() else 0.0
