@@ -1,0 +1,169 @@
+"""The ``calib`` command line; the stable contract is ``shared/CLI.md``.
+
+Every subcommand has ``--help``; every subcommand that reports something has ``--json``, which
+prints exactly one JSON object on stdout while progress, logs and warnings go to stderr.
+Exit status: 0 success, 1 the work failed (the message says why), 2 bad usage or unreadable
+input.
+
+Each subcommand is a pair of functions here, ``_add_<name>`` (its options) and ``_run_<name>``
+(the work, returning the exit status); the work itself lives in the noun modules.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+
+__all__ = ["main", "UsageError", "WorkFailed"]
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+
+
+class UsageError(Exception):
+    """Bad usage or unreadable input: exit status 2."""
+
+
+class WorkFailed(Exception):
+    """The work failed: exit status 1."""
+
+
+def _json_default(obj):
+    import numpy as np
+
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
+
+
+def _finite_or_none(obj):
+    """Replace NaN and infinities (not valid JSON) by None, recursively."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite_or_none(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite_or_none(v) for v in obj]
+    return obj
+
+
+def emit_json(obj) -> None:
+    """Print exactly one JSON object on stdout."""
+    text = json.dumps(_finite_or_none(json.loads(json.dumps(obj, default=_json_default))))
+    sys.stdout.write(text + "\n")
+    sys.stdout.flush()
+
+
+def log(message: str) -> None:
+    """Progress and notes go to stderr, never stdout."""
+    print(message, file=sys.stderr, flush=True)
+
+
+# ---------------------------------------------------------------------------- simulate
+def _add_simulate(sub) -> None:
+    p = sub.add_parser(
+        "simulate",
+        help="one forward FE compression run",
+        description="One explicit FE compression run of a cylinder between platens. Writes the "
+        "force-travel curve (time_s, displacement_mm, force_N) with --out, or prints it with "
+        "--json.",
+    )
+    p.add_argument("--mu", type=float, default=1875.0, help="shear modulus mu (Pa), default 1875")
+    p.add_argument("--alpha", type=float, default=4.9, help="Ogden exponent, default 4.9")
+    p.add_argument("--nu", type=float, default=0.499, help="Poisson's ratio, default 0.499")
+    p.add_argument("--diameter-mm", type=float, default=38.0, help="sample diameter (mm)")
+    p.add_argument("--height-mm", type=float, default=24.0, help="sample height (mm)")
+    p.add_argument("--strain", type=float, default=0.3,
+                   help="final compression as a fraction of the height, default 0.3")
+    p.add_argument("--rate", type=float, default=0.83, help="platen speed (mm/s), default 0.83")
+    p.add_argument("--mesh", choices=("axisym", "hex"), default="axisym",
+                   help="axisymmetric quads (default) or 3D hexahedra")
+    p.add_argument("--platen", choices=("bonded", "frictionless", "coulomb"), default="bonded",
+                   help="platen condition, default bonded (sandpaper)")
+    p.add_argument("--friction", type=float, default=0.0,
+                   help="Coulomb coefficient (with --platen coulomb)")
+    p.add_argument("--out", metavar="FILE.csv", help="write the curve as CSV")
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    p.set_defaults(handler=_run_simulate)
+
+
+def _run_simulate(args) -> int:
+    import numpy as np
+
+    from solver import CompressionTest, Ogden, SolverInstability, simulate
+
+    from ._io import atomic_write
+
+    try:
+        material = Ogden(mu_Pa=args.mu, alpha=args.alpha, nu=args.nu)
+        test = CompressionTest(diameter_mm=args.diameter_mm, height_mm=args.height_mm,
+                               strain=args.strain, rate_mm_per_s=args.rate,
+                               platen=args.platen, friction=args.friction)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from exc
+    if args.mesh == "hex":
+        raise WorkFailed("the hexahedral mesh path is not available yet; use --mesh axisym")
+    start = time.perf_counter()
+    try:
+        result = simulate(material, test)
+    except SolverInstability as exc:
+        raise WorkFailed(str(exc)) from exc
+    wall = time.perf_counter() - start
+    if args.out:
+        table = np.column_stack([result.time_s, result.displacement_mm, result.force_N])
+        with atomic_write(args.out) as fh:
+            fh.write("time_s,displacement_mm,force_N\n")
+            for row in table:
+                fh.write(f"{row[0]:.9g},{row[1]:.9g},{row[2]:.9g}\n")
+        log(f"wrote {len(table)} rows to {args.out}")
+    if args.json:
+        emit_json({
+            "time_s": result.time_s, "displacement_mm": result.displacement_mm,
+            "force_N": result.force_N, "wall_s": wall, "n_steps": result.n_steps,
+            "kinetic_ratio": result.kinetic_ratio, "hourglass_ratio": result.hourglass_ratio,
+        })
+    elif not args.out:
+        print(f"{'displacement_mm':>16} {'force_N':>12}")
+        for d, f in zip(result.displacement_mm, result.force_N):
+            print(f"{d:16.4f} {f:12.5f}")
+    log(f"{result.n_steps} steps in {wall:.3f} s; peak force {result.force_N[-1]:.4f} N at "
+        f"{result.displacement_mm[-1]:.3f} mm")
+    return EXIT_OK
+
+
+# ---------------------------------------------------------------------------- parser
+_SUBCOMMANDS = [_add_simulate]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with every subcommand."""
+    parser = argparse.ArgumentParser(
+        prog="calib",
+        description="Calibrate Ogden laws of soft-tissue phantoms by fitting an explicit FE "
+        "simulation of bonded-platen compression to rig force-displacement logs.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for add in _SUBCOMMANDS:
+        add(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``calib`` command; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.handler(args))
+    except UsageError as exc:
+        print(f"calib {args.command}: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except WorkFailed as exc:
+        print(f"calib {args.command}: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    except KeyboardInterrupt:
+        print(f"calib {args.command}: interrupted", file=sys.stderr)
+        return EXIT_FAILED
