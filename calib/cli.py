@@ -135,8 +135,74 @@ def _run_simulate(args) -> int:
     return EXIT_OK
 
 
+# ---------------------------------------------------------------------------- export
+def _add_export(sub) -> None:
+    from .export import FORMATS
+
+    p = sub.add_parser(
+        "export",
+        help="the per-layer parameter table as csv, json, markdown, latex, Abaqus or FEBio",
+        description="Read and validate a per-layer parameter table (parameters.csv as written by "
+        "`calib fit`) and render it as csv, json, a markdown or LaTeX (booktabs) table, Abaqus "
+        "*HYPERELASTIC, OGDEN cards (with *VISCOELASTIC, TIME=PRONY where fitted) or FEBio "
+        "Ogden material XML (c = 2 mu). Writes FILE with --out, otherwise prints to stdout. "
+        "Conventions: calib/export.py.",
+    )
+    p.add_argument("parameters", metavar="PARAMETERS.csv",
+                   help="per-layer parameter table (.csv, or .json as written by this command)")
+    p.add_argument("--format", dest="fmt", choices=FORMATS, default=None,
+                   help="output format; default: from the suffix of --out "
+                   "(.csv .json .md .tex .inp .feb)")
+    p.add_argument("--out", metavar="FILE", help="write the export to FILE (atomically)")
+    p.add_argument("--density", type=float, default=1000.0,
+                   help="mass density (kg/m^3) written into the material cards for layers "
+                   "without a density_kg_m3 column, default 1000")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object on stdout (format, layers, output file; the "
+                   "exported text itself under 'content' when there is no --out)")
+    p.set_defaults(handler=_run_export)
+
+
+def _run_export(args) -> int:
+    from ._io import write_text
+    from .export import ParameterTableError, export, format_for_path, read_parameters
+
+    fmt = args.fmt
+    if fmt is None:
+        if not args.out:
+            raise UsageError("give --format (csv, json, markdown, latex, abaqus, febio) or an "
+                             "--out file whose suffix names one")
+        try:
+            fmt = format_for_path(args.out)
+        except ValueError as exc:
+            raise UsageError(f"{exc}; give --format") from exc
+    if not (math.isfinite(args.density) and args.density > 0.0):
+        raise UsageError(f"--density {args.density}: a density (kg/m^3) must be positive")
+    try:
+        frame = read_parameters(args.parameters)
+        text = export(frame, fmt, density_kg_m3=args.density)
+    except ParameterTableError as exc:
+        raise UsageError(str(exc)) from exc
+    if args.out:
+        try:
+            write_text(args.out, text)
+        except OSError as exc:
+            raise WorkFailed(f"cannot write {args.out}: {exc.strerror or exc}") from exc
+        log(f"wrote {len(frame)} layer(s) as {fmt} to {args.out}")
+    if args.json:
+        report = {"format": fmt, "source": args.parameters, "out": args.out,
+                  "layers": list(frame["layer"]), "models": list(frame["model"])}
+        if not args.out:
+            report["content"] = text
+        emit_json(report)
+    elif not args.out:
+        sys.stdout.write(text)
+        sys.stdout.flush()
+    return EXIT_OK
+
+
 # ---------------------------------------------------------------------------- parser
-_SUBCOMMANDS = [_add_simulate]
+_SUBCOMMANDS = [_add_simulate, _add_export]
 
 
 def build_parser() -> argparse.ArgumentParser:
