@@ -201,8 +201,87 @@ def _run_export(args) -> int:
     return EXIT_OK
 
 
+# ---------------------------------------------------------------------------- inspect
+def _add_inspect(sub) -> None:
+    p = sub.add_parser(
+        "inspect",
+        help="load a folder of rig logs and report what was found and rejected",
+        description="Load a folder of rig logs (shared/RIG_LOGS.md; sub-folders one level "
+        "deep) and report every loading cycle found with what was inferred (sign convention, "
+        "units, tare, contact point, peak strain, trimmed spans, warnings) and every file "
+        "rejected, with the reason. Exit status 2 if DATA is missing, not a folder, or holds no "
+        "readable cycle; rejected files alone do not fail the command. How each quantity is "
+        "found: calib/loaders.py.",
+    )
+    p.add_argument("data", metavar="DATA", help="folder of rig logs")
+    p.add_argument("--json", action="store_true",
+                   help='print one JSON object {"cycles": [...], "rejected": [...]} on stdout')
+    p.set_defaults(handler=_run_inspect)
+
+
+def _run_inspect(args) -> int:
+    import os
+
+    from .loaders import load_campaign
+
+    if not os.path.exists(args.data):
+        raise UsageError(f"{args.data}: no such folder")
+    if not os.path.isdir(args.data):
+        raise UsageError(f"{args.data}: not a folder")
+    try:
+        campaign = load_campaign(args.data)
+    except OSError as exc:
+        raise UsageError(f"{args.data}: {exc.strerror or exc}") from exc
+    report = campaign.report()
+    if args.json:
+        for note in campaign.notes:
+            log(f"note: {note}")
+        emit_json(report)
+    else:
+        _print_inspect(campaign)
+    log(f"{len(campaign.cycles)} cycles loaded, {len(campaign.rejected)} rejected from "
+        f"{args.data}")
+    if not campaign.cycles:
+        what = (f"{len(campaign.rejected)} entries rejected" if campaign.rejected
+                else "no files found")
+        raise UsageError(f"{args.data}: no readable cycle ({what})")
+    return EXIT_OK
+
+
+def _print_inspect(campaign) -> None:
+    """The inspect report as a readable table, then warnings, rejections and notes."""
+    rows = [("file", "layer", "sample", "test", "rate mm/s", "sign d/f", "tare N",
+             "contact mm", "peak strain", "points", "warnings")]
+    for c in campaign.cycles:
+        rows.append((c.file, c.layer, c.sample, str(c.test), f"{c.rate_mm_per_s:g}",
+                     f"{c.sign['displacement']:+d}/{c.sign['force']:+d}", f"{c.tare_N:.4f}",
+                     f"{c.contact_mm:.3f}", f"{c.peak_strain:.3f}", str(c.n_points),
+                     str(len(c.warnings))))
+    widths = [max(len(r[k]) for r in rows) for k in range(len(rows[0]))]
+    for r in rows:
+        print("  ".join(cell.ljust(w) if k < 3 else cell.rjust(w)
+                        for k, (cell, w) in enumerate(zip(r, widths))))
+    print(f"\n{len(campaign.cycles)} cycles in {len(campaign.layers())} layers "
+          f"({', '.join(campaign.layers())})")
+    warned = [c for c in campaign.cycles if c.warnings]
+    if warned:
+        print("\nWarnings:")
+        for c in warned:
+            for w in c.warnings:
+                print(f"  {c.file}: {w}")
+    print(f"\nRejected ({len(campaign.rejected)}):")
+    for r in campaign.rejected:
+        print(f"  {r.file}: {r.reason}")
+    if not campaign.rejected:
+        print("  none")
+    if campaign.notes:
+        print("\nNotes:")
+        for note in campaign.notes:
+            print(f"  {note}")
+
+
 # ---------------------------------------------------------------------------- parser
-_SUBCOMMANDS = [_add_simulate, _add_export]
+_SUBCOMMANDS = [_add_simulate, _add_export, _add_inspect]
 
 
 def build_parser() -> argparse.ArgumentParser:
