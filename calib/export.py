@@ -251,7 +251,7 @@ def _is_blank(value) -> bool:
 
 
 def _to_float(value) -> float:
-    """A cell as float; blank cells are NaN; raises ValueError on text that is not a number."""
+    """Convert a cell to float; blank cells are NaN; ValueError on text that is no number."""
     if _is_blank(value):
         return math.nan
     if isinstance(value, (bool, np.bool_)):
@@ -262,7 +262,7 @@ def _to_float(value) -> float:
 
 
 def _column_order(columns: list[str]) -> list[str]:
-    """Required columns, then material extras in canonical order, then the rest as given."""
+    """Order columns: required, material extras in canonical order, the rest as given."""
     material = [c for c in columns if c not in REQUIRED_COLUMNS and _MATERIAL_COLUMN.match(c)]
 
     def key(col):
@@ -425,7 +425,7 @@ def validate_parameters(frame: pd.DataFrame, source: str = "parameter table") ->
         mus = [numeric[m][i] for m, _ in spec.term_columns()]
         alphas = [numeric[a][i] for _, a in spec.term_columns()]
         if all(math.isfinite(v) for v in mus + alphas):
-            for (mcol, acol), m, a in zip(spec.term_columns(), mus, alphas):
+            for (mcol, acol), m, a in zip(spec.term_columns(), mus, alphas, strict=True):
                 if a == 0.0:
                     problems.append(f"{where(i, acol)}: an Ogden exponent cannot be zero")
                 elif m * a <= 0.0:
@@ -439,7 +439,7 @@ def validate_parameters(frame: pd.DataFrame, source: str = "parameter table") ->
                                 " must be positive")
         if spec.n_prony:
             gs = [numeric[g][i] for g, _ in spec.prony_columns()]
-            for (gcol, tcol), g in zip(spec.prony_columns(), gs):
+            for (gcol, tcol), g in zip(spec.prony_columns(), gs, strict=True):
                 t = numeric[tcol][i]
                 if math.isfinite(g) and not 0.0 <= g < 1.0:
                     problems.append(f"{where(i, gcol)}: relative modulus {g} must lie in [0, 1)")
@@ -622,7 +622,7 @@ def _layer_density(frame: pd.DataFrame, i: int, default: float) -> float:
 
 
 def layer_materials(frame: pd.DataFrame, density_kg_m3: float = DEFAULT_DENSITY_KG_M3) -> dict:
-    """The :class:`solver.Ogden` material of each layer.
+    """Build the :class:`solver.Ogden` material of each layer.
 
     Parameters
     ----------
@@ -776,7 +776,7 @@ def _latex_escape(text) -> str:
 
 
 def _latex_number(text: str) -> str:
-    """Escape a formatted number; scientific notation becomes ``$m\\times10^{e}$``."""
+    r"""Escape a formatted number; scientific notation becomes ``$m\times10^{e}$``."""
     match = re.fullmatch(r"(-?[\d.]+)e([+-]?\d+)", text)
     if match:
         return f"${match.group(1)}\\times10^{{{int(match.group(2))}}}$"
@@ -797,7 +797,7 @@ def _latex(clean: pd.DataFrame) -> str:
             out.append(f"{_latex_number(value)} $\\pm$ {_latex_number(err)}")
         out += [_latex_number(c) for c in cells[4:8]]
         out += [_latex_number(c) if f else _latex_escape(c)
-                for c, f in zip(cells[8:], numeric_extra)]
+                for c, f in zip(cells[8:], numeric_extra, strict=True)]
         body.append("    " + " & ".join(out) + r" \\")
     caption = ("Ogden parameters per layer: estimate $\\pm$ one standard error (n/a: not "
                "identifiable). $W = \\sum_i \\frac{2\\mu_i}{\\alpha_i^2}(\\bar\\lambda_1^{\\alpha_i}"
@@ -875,7 +875,7 @@ def _json(clean: pd.DataFrame) -> str:
 
 # ============================================================================ cards
 def _num(x: float) -> str:
-    """A card number: the shortest text that reads back to the same float."""
+    """Format a card number: the shortest text that reads back to the same float."""
     return repr(float(x))
 
 
@@ -938,14 +938,14 @@ def _abaqus(clean: pd.DataFrame, density_kg_m3: float, source: str | None) -> st
             option += ", MODULI=LONG TERM"
         lines.append(option)
         values = []
-        for m, a in zip(material.mu_Pa, material.alpha):
+        for m, a in zip(material.mu_Pa, material.alpha, strict=True):
             values += [_num(m), _num(a)]
         values += [_num(2.0 / K)] + [_num(0.0)] * (material.n_terms - 1)
         for start in range(0, len(values), 8):  # at most 8 values per data line
             lines.append(", ".join(values[start:start + 8]))
         if material.prony is not None:
             lines.append("*VISCOELASTIC, TIME=PRONY")
-            for g, tau in zip(material.prony.g, material.prony.tau_s):
+            for g, tau in zip(material.prony.g, material.prony.tau_s, strict=True):
                 lines.append(f"{_num(g)}, {_num(0.0)}, {_num(tau)}")
     return "\n".join(lines) + "\n"
 
@@ -995,7 +995,7 @@ def _febio(clean: pd.DataFrame, density_kg_m3: float, source: str | None) -> str
             comments.append("not material parameters, left out of this card: "
                             + ", ".join(ignored))
         ogden = []
-        for i, (m, a) in enumerate(zip(material.mu_Pa, material.alpha), start=1):
+        for i, (m, a) in enumerate(zip(material.mu_Pa, material.alpha, strict=True), start=1):
             ogden += [f"<c{i}>{_num(2.0 * m)}</c{i}>", f"<m{i}>{_num(a)}</m{i}>"]
         density = f"<density>{_num(material.density_kg_m3)}</density>"
         attrs = f'id="{number}" name="{_xml_attr(layer)}"'
@@ -1008,7 +1008,7 @@ def _febio(clean: pd.DataFrame, density_kg_m3: float, source: str | None) -> str
             g_inf = material.prony.g_inf
             lines.append(f'  <material {attrs} type="uncoupled viscoelastic">')
             lines += ["    " + density, "    <k>0</k>", "    <g0>1</g0>"]
-            for i, (g, tau) in enumerate(zip(material.prony.g, material.prony.tau_s), start=1):
+            for i, (g, tau) in enumerate(zip(material.prony.g, material.prony.tau_s, strict=True), start=1):
                 lines += [f"    <g{i}>{_num(g / g_inf)}</g{i}>", f"    <t{i}>{_num(tau)}</t{i}>"]
             lines.append('    <elastic type="Ogden">')
             lines += [f"      <k>{_num(K)}</k>"] + ["      " + e for e in ogden]
@@ -1070,7 +1070,7 @@ def export(frame: pd.DataFrame, fmt: str, *, density_kg_m3: float = DEFAULT_DENS
 
 
 def format_for_path(path: str | os.PathLike) -> str:
-    """The export format implied by a file suffix (``.csv .json .md .tex .inp .feb .xml``)."""
+    """Return the export format implied by a file suffix (.csv .json .md .tex .inp .feb .xml)."""
     suffix = Path(path).suffix.lower()
     if suffix not in _FORMAT_OF_SUFFIX:
         raise ValueError(f"cannot tell the export format from the suffix {suffix!r} of {path}; "
