@@ -198,7 +198,7 @@ class ModelSpec:
 
     @classmethod
     def parse(cls, text) -> ModelSpec:
-        """Parse ``ogden``, ``ogden<N>`` with an optional ``+prony<k>`` (case and spaces ignored)."""
+        """Parse ``ogden`` or ``ogden<N>``, optionally ``+prony<k>``; case and spaces ignored."""
         cleaned = re.sub(r"\s+", "", str(text)).lower()
         match = _MODEL.match(cleaned)
         if match is None:
@@ -299,7 +299,8 @@ def validate_parameters(frame: pd.DataFrame, source: str = "parameter table") ->
         Listing every problem with the layer (and row) and column concerned.
     """
     if not isinstance(frame, pd.DataFrame):
-        raise ParameterTableError(source, [f"expected a pandas DataFrame, got {type(frame).__name__}"])
+        raise ParameterTableError(
+            source, [f"expected a pandas DataFrame, got {type(frame).__name__}"])
     columns = [str(c).strip() for c in frame.columns]
     duplicated = sorted({c for c in columns if columns.count(c) > 1})
     if duplicated:
@@ -800,7 +801,8 @@ def _latex(clean: pd.DataFrame) -> str:
                 for c, f in zip(cells[8:], numeric_extra, strict=True)]
         body.append("    " + " & ".join(out) + r" \\")
     caption = ("Ogden parameters per layer: estimate $\\pm$ one standard error (n/a: not "
-               "identifiable). $W = \\sum_i \\frac{2\\mu_i}{\\alpha_i^2}(\\bar\\lambda_1^{\\alpha_i}"
+               "identifiable). $W = \\sum_i \\frac{2\\mu_i}{\\alpha_i^2}"
+               "(\\bar\\lambda_1^{\\alpha_i}"
                " + \\bar\\lambda_2^{\\alpha_i} + \\bar\\lambda_3^{\\alpha_i} - 3) + \\frac{K}{2}"
                "(J-1)^2$, $K = 2\\mu(1+\\nu)/(3(1-2\\nu))$; $\\mu$ is the small-strain shear "
                "modulus")
@@ -809,7 +811,8 @@ def _latex(clean: pd.DataFrame) -> str:
         caption += " (term 1 of ogden$N$ rows, whose further terms are mu2\\_Pa, alpha2, ...)"
     if any(s.n_prony for s in specs):
         caption += (", long-term where a Prony series is fitted, with $g_k$ normalised by the "
-                    "instantaneous modulus, $\\mu(t) = \\mu_0(1 - \\sum_k g_k(1 - e^{-t/\\tau_k}))$")
+                    "instantaneous modulus, "
+                    "$\\mu(t) = \\mu_0(1 - \\sum_k g_k(1 - e^{-t/\\tau_k}))$")
     caption += r"; $\rho_{\mu\alpha}$: correlation of the estimates; RMS: force residual."
     lines = [
         "% Ogden parameters per layer, exported by `calib export`; needs \\usepackage{booktabs}",
@@ -1008,7 +1011,8 @@ def _febio(clean: pd.DataFrame, density_kg_m3: float, source: str | None) -> str
             g_inf = material.prony.g_inf
             lines.append(f'  <material {attrs} type="uncoupled viscoelastic">')
             lines += ["    " + density, "    <k>0</k>", "    <g0>1</g0>"]
-            for i, (g, tau) in enumerate(zip(material.prony.g, material.prony.tau_s, strict=True), start=1):
+            terms = zip(material.prony.g, material.prony.tau_s, strict=True)
+            for i, (g, tau) in enumerate(terms, start=1):
                 lines += [f"    <g{i}>{_num(g / g_inf)}</g{i}>", f"    <t{i}>{_num(tau)}</t{i}>"]
             lines.append('    <elastic type="Ogden">')
             lines += [f"      <k>{_num(K)}</k>"] + ["      " + e for e in ogden]

@@ -195,7 +195,8 @@ class AbaqusOgden:
         lam = np.asarray(lam, dtype=float)
         J = np.prod(lam)
         lb = isochoric(lam)
-        U = sum(2 * m / a**2 * (np.sum(lb**a) - 3) for m, a in zip(self.mu, self.alpha, strict=True))
+        U = sum(2 * m / a**2 * (np.sum(lb**a) - 3)
+                for m, a in zip(self.mu, self.alpha, strict=True))
         # 1/D_i (J - 1)^(2i); a zero D_i (i >= 2) contributes nothing
         U += sum((J - 1.0) ** (2 * i) / d for i, d in enumerate(self.D, start=1) if d != 0.0)
         return U
