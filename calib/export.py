@@ -485,7 +485,9 @@ def _read_csv_cells(path: Path) -> tuple[list[str], list[list[str]]]:
     except FileNotFoundError:
         raise ParameterTableError(source, ["no such file"]) from None
     except IsADirectoryError:
-        raise ParameterTableError(source, ["is a directory, not a parameter table"]) from None
+        hint = "; give its parameters.csv" if (path / "parameters.csv").is_file() else ""
+        raise ParameterTableError(source, [f"is a directory, not a parameter table{hint}"]) \
+            from None
     except OSError as exc:
         raise ParameterTableError(source, [f"cannot be read ({exc.strerror or exc})"]) from None
     if b"\x00" in raw:

@@ -697,7 +697,10 @@ def test_unreadable_files(tmp_path, content, expected):
 def test_missing_file_and_directory(tmp_path):
     with pytest.raises(ParameterTableError, match="no such file"):
         read_parameters(tmp_path / "nope.csv")
-    with pytest.raises(ParameterTableError, match="directory"):
+    with pytest.raises(ParameterTableError, match="directory, not a parameter table$"):
+        read_parameters(tmp_path)
+    (tmp_path / "parameters.csv").write_text("layer\n", encoding="utf-8")
+    with pytest.raises(ParameterTableError, match="give its parameters.csv"):
         read_parameters(tmp_path)
 
 
