@@ -280,8 +280,70 @@ def _print_inspect(campaign) -> None:
             print(f"  {note}")
 
 
+# ---------------------------------------------------------------------------- generate
+def _add_generate(sub) -> None:
+    p = sub.add_parser(
+        "generate",
+        help="write a synthetic campaign from a known truth",
+        description="Write a synthetic campaign in the rig log format (shared/RIG_LOGS.md) "
+        "from a known truth: layers A-F x 3 samples x 3 rates, simulated with the forward "
+        "solver on a fine mesh, with a realistic sensor model and the file variants of the "
+        "contract, plus DIR/truth.json (for tests; the pipeline never reads it). Scenarios: "
+        "clean, rate_dependence, platen_slip, contact_offset, machine_compliance, "
+        "compressibility, second_ogden_term, preconditioning (experiments/scenarios.py).",
+    )
+    p.add_argument("--scenario", required=True, metavar="S",
+                   help="clean or a hidden effect (see the description)")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="target folder: new or empty (or an earlier campaign with --overwrite)")
+    p.add_argument("--seed", type=int, default=0, help="master seed (non-negative), default 0")
+    p.add_argument("--magnitude", type=float, default=1.0, metavar="M",
+                   help="effect magnitude: 1 moderate (default), 0 reduces to clean")
+    p.add_argument("--layers", metavar="A,B",
+                   help="comma-separated subset of the layers A-F, default all")
+    p.add_argument("--fast", action="store_true",
+                   help="simulate on the fitting default mesh (cheap null runs)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace DIR if it holds an earlier generated campaign (truth.json)")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object summarising what was written")
+    p.set_defaults(handler=_run_generate)
+
+
+def _run_generate(args) -> int:
+    from solver import SolverInstability
+
+    try:
+        from experiments.generator import CampaignSpec, generate_campaign
+    except ImportError as exc:
+        raise WorkFailed(f"the experiments package is not importable: {exc}") from exc
+    try:
+        spec = CampaignSpec(scenario=args.scenario, magnitude=args.magnitude,
+                            seed=args.seed, layers=args.layers, fast=args.fast)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from exc
+    try:
+        summary = generate_campaign(args.out, spec, overwrite=args.overwrite, progress=log)
+    except FileExistsError as exc:
+        raise UsageError(str(exc)) from exc
+    except PermissionError as exc:
+        raise UsageError(f"{args.out}: {exc.strerror or exc}") from exc
+    except SolverInstability as exc:
+        raise WorkFailed(f"a forward simulation failed: {exc}") from exc
+    except ValueError as exc:
+        raise WorkFailed(str(exc)) from exc
+    if args.json:
+        emit_json(summary.to_dict())
+    else:
+        print(f"{summary.n_cycles} cycles ({summary.scenario}, M = {summary.magnitude:g}, "
+              f"seed {summary.seed}) written to {summary.out}; truth in {summary.truth}")
+    log(f"{summary.n_simulations} solver runs on a {summary.mesh[0]}x{summary.mesh[1]} mesh; "
+        f"{summary.n_bytes / 1e6:.2f} MB in {summary.wall_s:.1f} s")
+    return EXIT_OK
+
+
 # ---------------------------------------------------------------------------- parser
-_SUBCOMMANDS = [_add_simulate, _add_export, _add_inspect]
+_SUBCOMMANDS = [_add_simulate, _add_export, _add_inspect, _add_generate]
 
 
 def build_parser() -> argparse.ArgumentParser:

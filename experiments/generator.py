@@ -75,7 +75,7 @@ from .rigfile import (
     format_cycle,
     manifest_text,
 )
-from .scenarios import SCENARIOS, CycleLaw, get_scenario
+from .scenarios import CycleLaw, get_scenario
 from .sensor import SensorModel
 
 __all__ = [
@@ -241,8 +241,8 @@ class CampaignSpec:
     filename_only_probability: float = 0.12
 
     def __post_init__(self):
-        get_scenario(self.scenario)
-        SCENARIOS[self.scenario].parameters(self.magnitude)  # validates the magnitude
+        scenario = get_scenario(self.scenario)
+        scenario.parameters(self.magnitude)  # validates the magnitude
         if isinstance(self.seed, bool) or int(self.seed) != self.seed or self.seed < 0:
             raise ValueError(f"seed {self.seed!r} must be a non-negative integer")
         object.__setattr__(self, "seed", int(self.seed))
@@ -257,6 +257,8 @@ class CampaignSpec:
         object.__setattr__(self, "rates", rates)
         if not 0 <= self.filename_only_probability <= 1:
             raise ValueError("filename_only_probability must lie in [0, 1]")
+        for layer in self.layers:  # the effect must be valid at every layer's Table 1 truth
+            scenario.law(*TABLE_1[layer], test=len(rates), magnitude=self.magnitude)
 
     @property
     def mesh_size(self) -> tuple[int, int]:
