@@ -249,7 +249,7 @@ def _run_inspect(args) -> int:
 
 
 def _print_inspect(campaign) -> None:
-    """The inspect report as a readable table, then warnings, rejections and notes."""
+    """Print the inspect report as a table, then warnings, rejections and notes."""
     rows = [("file", "layer", "sample", "test", "rate mm/s", "sign d/f", "tare N",
              "contact mm", "peak strain", "points", "warnings")]
     for c in campaign.cycles:
@@ -260,7 +260,7 @@ def _print_inspect(campaign) -> None:
     widths = [max(len(r[k]) for r in rows) for k in range(len(rows[0]))]
     for r in rows:
         print("  ".join(cell.ljust(w) if k < 3 else cell.rjust(w)
-                        for k, (cell, w) in enumerate(zip(r, widths))))
+                        for k, (cell, w) in enumerate(zip(r, widths, strict=True))))
     print(f"\n{len(campaign.cycles)} cycles in {len(campaign.layers())} layers "
           f"({', '.join(campaign.layers())})")
     warned = [c for c in campaign.cycles if c.warnings]

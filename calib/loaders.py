@@ -209,7 +209,7 @@ class Span:
     n_points: int
 
     def to_dict(self) -> dict:
-        """The span as JSON-ready values."""
+        """Return the span as JSON-ready values."""
         return {"kind": self.kind, "start_s": float(self.start_s), "end_s": float(self.end_s),
                 "n_points": int(self.n_points)}
 
@@ -322,7 +322,7 @@ class Cycle:
         return int(len(self.time_s))
 
     def report(self) -> dict:
-        """This cycle's entry of the ``calib inspect --json`` object."""
+        """Return the cycle's entry of the ``calib inspect --json`` object."""
         return {
             "file": self.file,
             "layer": self.layer,
@@ -455,7 +455,7 @@ def _decode(raw: bytes) -> tuple[str, list[str]]:
             raise CycleRejected(
                 f"binary or undecodable content: not UTF-8 (byte 0x{raw[bad]:02x} at offset "
                 f"{bad}) and control characters present"
-            )
+            ) from None
         warnings = [f"not UTF-8 (byte 0x{raw[bad]:02x} at offset {bad}); read as Windows-1252"]
     n_ctrl = _control_chars(text)
     if n_ctrl:
@@ -479,7 +479,7 @@ def _split(line: str, sep) -> list[str]:
 
 
 def _cell(cell: str) -> float | None:
-    """A cell as a number: ``nan`` for empty or NaN, ``None`` when it is not a number."""
+    """Read a cell as a number: ``nan`` if empty or NaN, ``None`` if it is not a number."""
     s = cell.strip().strip("\"'").strip()
     if not s or s.lower() in ("nan", "na", "n/a", "null", "none", "-"):
         return math.nan
@@ -493,7 +493,7 @@ def _cell(cell: str) -> float | None:
 
 
 def _numeric_fields(line: str, sep) -> int:
-    """Number of fields if every non-empty field is a number (at least two), else 0."""
+    """Count the fields if every non-empty field is a number (at least two), else 0."""
     fields = _split(line, sep)
     while fields and not fields[-1].strip():
         fields.pop()
@@ -659,7 +659,7 @@ _BRACKET = re.compile(r"^(.*?)\s*[\[\(\{<]\s*([^\]\)\}>]*?)\s*[\]\)\}>]\s*(.*)$"
 
 
 def _bare_unit(cell: str) -> str | None:
-    """The unit in a units-row cell (``s``, ``(mm)``, ``[N]``), or None if not a known unit."""
+    """Return the unit of a units-row cell (``s``, ``(mm)``, ``[N]``), or None if unknown."""
     s = cell.strip()
     m = re.fullmatch(r"[\[\(\{<]?\s*([^\]\)\}>]*?)\s*[\]\)\}>]?", s)
     u = m.group(1) if m else s
@@ -793,7 +793,7 @@ _KEY_FIELD = {
 
 
 def _quantity(text, kind: str, what: str) -> float:
-    """A metadata value with an optional unit, in mm, mm/s or a strain fraction."""
+    """Read a metadata value with an optional unit, in mm, mm/s or a strain fraction."""
     if isinstance(text, (int, float, np.integer, np.floating)) and not isinstance(text, bool):
         return float(text)
     m = _QUANTITY.match(str(text))
@@ -944,9 +944,8 @@ def _clean_time(t, d, f, lines):
     ok = np.isfinite(t) & np.isfinite(d) & np.isfinite(f)
     if not ok.all():
         dropped = lines[~ok]
-        listed = ", ".join(str(v) for v in dropped[:5]) + (" ..." if len(dropped) > 5 else "")
         warnings.append(f"dropped {len(dropped)} rows with a missing or non-numeric value "
-                        f"(lines {listed})")
+                        f"(lines {_listed(dropped)})")
         t, d, f, lines = t[ok], d[ok], f[ok], lines[ok]
     if len(t) < MIN_POINTS:
         raise CycleRejected(f"fewer than {MIN_POINTS} points: {len(t)} complete data rows")
@@ -955,6 +954,14 @@ def _clean_time(t, d, f, lines):
     if len(forward) == 0:
         raise CycleRejected("time does not advance: every time stamp is the same")
     h = float(np.median(forward))
+    glitch = _time_glitches(t, 2.0 * h)
+    if len(glitch) and len(glitch) <= max(2, len(t) // 100):
+        warnings.append(f"dropped {len(glitch)} rows whose time stamp is out of line with both "
+                        f"neighbours (lines {_listed(lines[glitch])})")
+        keep = np.ones(len(t), dtype=bool)
+        keep[glitch] = False
+        t, d, f, lines = t[keep], d[keep], f[keep], lines[keep]
+        dt = np.diff(t)
     back = np.flatnonzero(dt < 0)
     if len(back):
         worst = back[np.argmin(dt[back])]
@@ -986,6 +993,16 @@ def _clean_time(t, d, f, lines):
         t, d, f, lines = uniq, d_mean, f_mean, lines[first]
     if len(t) < MIN_POINTS:
         raise CycleRejected(f"fewer than {MIN_POINTS} points: {len(t)} distinct time stamps")
+    spikes = np.union1d(_spikes(d), _spikes(f))
+    if len(spikes) > max(2, len(t) // 100):
+        raise CycleRejected(f"too many isolated spikes to be a rig log: {len(spikes)} samples "
+                            f"jump away from both neighbours and back")
+    if len(spikes):
+        warnings.append(f"dropped {len(spikes)} isolated spikes in the displacement or force "
+                        f"(lines {_listed(lines[spikes])})")
+        keep = np.ones(len(t), dtype=bool)
+        keep[spikes] = False
+        t, d, f, lines = t[keep], d[keep], f[keep], lines[keep]
     dt = np.diff(t)
     gaps = np.flatnonzero(dt > 5.0 * h)
     if len(gaps):
@@ -994,6 +1011,50 @@ def _clean_time(t, d, f, lines):
         warnings.append(f"{len(gaps)} gaps in the time stamps longer than five sampling "
                         f"intervals ({h:.3g} s): {shown}{more}")
     return t, d, f, lines, warnings
+
+
+def _listed(values, limit=5) -> str:
+    shown = ", ".join(str(v) for v in values[:limit])
+    return shown + (" ..." if len(values) > limit else "")
+
+
+def _time_glitches(t: np.ndarray, jitter: float) -> np.ndarray:
+    """Rows whose time stamp is out of line with both neighbours while those agree.
+
+    A sample is a glitch when it lies more than ``jitter`` before its predecessor or after its
+    successor while the predecessor and successor are themselves in order (within jitter):
+    one corrupt stamp, not a restart of the clock.
+    """
+    n = len(t)
+    if n < 3:
+        return np.array([], dtype=np.int64)
+    i = np.arange(1, n - 1)
+    out_of_line = (t[i] < t[i - 1] - jitter) | (t[i] > t[i + 1] + jitter)
+    neighbours_ok = t[i - 1] <= t[i + 1] + jitter
+    bad = list(i[out_of_line & neighbours_ok])
+    if t[0] > t[1] + jitter and t[1] <= t[2] + jitter:
+        bad.insert(0, 0)
+    if t[-1] < t[-2] - jitter and t[-3] <= t[-2] + jitter:
+        bad.append(n - 1)
+    return np.array(bad, dtype=np.int64)
+
+
+def _spikes(x: np.ndarray) -> np.ndarray:
+    """Find samples that jump away from both neighbours (same direction) and straight back.
+
+    The jump on both sides must exceed 20 noise levels and five times the larger of the two
+    neighbouring steps (``x[i-1] - x[i-2]``, ``x[i+2] - x[i+1]``): at a sharp peak of the
+    travel or force the jump is about one neighbouring step, at a sensor glitch many.
+    """
+    n = len(x)
+    if n < 7:
+        return np.array([], dtype=np.int64)
+    i = np.arange(2, n - 2)
+    up, down = x[i] - x[i - 1], x[i] - x[i + 1]
+    jump = np.minimum(np.abs(up), np.abs(down))
+    beside = np.maximum(np.abs(x[i - 1] - x[i - 2]), np.abs(x[i + 2] - x[i + 1]))
+    spike = (np.sign(up) == np.sign(down)) & (jump > 20.0 * _noise(x)) & (jump > 5.0 * beside)
+    return i[spike]
 
 
 def _hinge_fit(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
@@ -1449,7 +1510,7 @@ def load_campaign(path) -> Campaign:
                      + (" ..." if len(hidden) > 5 else ""))
 
     manifest_rows: dict[str, dict] = {}
-    manifest_of: dict[str, str] = {}
+    manifests_read: set[str] = set()
     data_files = []
     by_name: dict[str, list[str]] = {}
     for p in files:
@@ -1473,8 +1534,8 @@ def load_campaign(path) -> Campaign:
             rejected.append(Rejection(mrel, f"manifest not used: unexpected error "
                                             f"{type(exc).__name__}: {exc}"))
             continue
-        notes.append(f"{mrel}: {len(rows)} rows used as metadata (a manifest row wins over "
-                     f"the file header)")
+        manifests_read.add(mrel)
+        matched = 0
         for row in rows:
             listed = row["file"].replace("\\", "/").strip("/")
             target = f"{base}/{listed}" if base else listed
@@ -1489,7 +1550,9 @@ def load_campaign(path) -> Campaign:
                 notes.append(f"{target}: listed twice in manifests; the first row used")
                 continue
             manifest_rows[target] = row
-            manifest_of[target] = mrel
+            matched += 1
+        notes.append(f"{mrel}: {matched} of {len(rows)} rows matched a file and were used as "
+                     f"metadata (a manifest row wins over the file header)")
 
     cycles: list[Cycle] = []
     for p in data_files:
@@ -1504,10 +1567,10 @@ def load_campaign(path) -> Campaign:
                                            f"{type(exc).__name__}: {exc}"))
             continue
         folder_manifest = (rel.rpartition("/")[0] + "/manifest.csv").lstrip("/")
-        if rel not in manifest_rows and any(m in (folder_manifest, "manifest.csv")
-                                            for m in manifest_of.values()):
+        covering = sorted(manifests_read & {folder_manifest, "manifest.csv"})
+        if rel not in manifest_rows and covering:
             cycle = dataclasses.replace(
-                cycle, warnings=cycle.warnings + ("not listed in the folder's manifest.csv",))
+                cycle, warnings=cycle.warnings + (f"not listed in {' or '.join(covering)}",))
         cycles.append(cycle)
 
     defaults = sum(1 for c in cycles
