@@ -174,6 +174,11 @@ _ROLE_WORDS = {
 _NOT_A_ROLE = {"strain", "stress", "rate", "speed", "velocity", "temperature", "temp",
                "setpoint", "target", "command", "cycle", "count", "index", "step"}
 _DATA_SUFFIXES = {".csv", ".tsv", ".txt", ".dat", ".log", ".asc", ".prn", ".tab"}
+#: Suffixes of files that are certainly not rig logs: listed as rejected without being parsed.
+_NOT_LOGS = {".json", ".md", ".rst", ".html", ".htm", ".png", ".jpg", ".jpeg", ".gif", ".svg",
+             ".pdf", ".py", ".ipynb", ".yaml", ".yml", ".toml", ".zip", ".gz", ".docx", ".doc",
+             ".pptx"}
+_WORKBOOKS = {".xlsx", ".xls", ".xlsm", ".ods"}
 _SEPARATORS = ("\t", ";", ",", "|", None)   # None: runs of white space
 _SEP_NAMES = {"\t": "tab", ";": "semicolon", ",": "comma", "|": "pipe", None: "white space"}
 _META_FIELDS = ("layer", "sample", "test", "rate_mm_per_s", "diameter_mm", "height_mm")
@@ -1177,8 +1182,9 @@ def _branch(t, d, f, lines):
         dropped_low = np.flatnonzero(after < 0.5 * d_max)
         if len(dropped_low) and (after[dropped_low[0]:] >= 0.9 * d_max).any():
             j = run_end + dropped_low[0] + int(np.argmax(after[dropped_low[0]:] >= 0.9 * d_max))
-            warnings.append(f"the log loads again after unloading (from t = {t[j]:.6g} s); only "
-                            f"the first loading was used, the rest is in the unloading span")
+            warnings.append(f"the log loads again after unloading (back above 90 % of the peak "
+                            f"travel at t = {t[j]:.6g} s); only the first loading was used, the "
+                            f"rest is in the unloading span")
 
     # contact: two-segment fit over the start of the rise
     Fw, Dw = F[: i_pk + 1], D[: i_pk + 1]
@@ -1510,7 +1516,6 @@ def load_campaign(path) -> Campaign:
                      + (" ..." if len(hidden) > 5 else ""))
 
     manifest_rows: dict[str, dict] = {}
-    manifests_read: set[str] = set()
     data_files = []
     by_name: dict[str, list[str]] = {}
     for p in files:
@@ -1534,7 +1539,6 @@ def load_campaign(path) -> Campaign:
             rejected.append(Rejection(mrel, f"manifest not used: unexpected error "
                                             f"{type(exc).__name__}: {exc}"))
             continue
-        manifests_read.add(mrel)
         matched = 0
         for row in rows:
             listed = row["file"].replace("\\", "/").strip("/")
@@ -1557,6 +1561,14 @@ def load_campaign(path) -> Campaign:
     cycles: list[Cycle] = []
     for p in data_files:
         rel = _relative(p, root)
+        suffix = p.suffix.lower()
+        if suffix in _WORKBOOKS:
+            rejected.append(Rejection(rel, f"spreadsheet workbook ({suffix}) not read: export "
+                                           f"the sheet as CSV"))
+            continue
+        if suffix in _NOT_LOGS:
+            rejected.append(Rejection(rel, f"not a rig log ({suffix} file); not read"))
+            continue
         try:
             cycle = load_cycle(p, root=root, manifest_row=manifest_rows.get(rel))
         except CycleRejected as exc:
@@ -1566,11 +1578,6 @@ def load_campaign(path) -> Campaign:
             rejected.append(Rejection(rel, f"unexpected error while loading: "
                                            f"{type(exc).__name__}: {exc}"))
             continue
-        folder_manifest = (rel.rpartition("/")[0] + "/manifest.csv").lstrip("/")
-        covering = sorted(manifests_read & {folder_manifest, "manifest.csv"})
-        if rel not in manifest_rows and covering:
-            cycle = dataclasses.replace(
-                cycle, warnings=cycle.warnings + (f"not listed in {' or '.join(covering)}",))
         cycles.append(cycle)
 
     defaults = sum(1 for c in cycles

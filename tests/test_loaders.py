@@ -325,6 +325,16 @@ def test_sharp_peak_without_hold_is_not_a_spike(tmp_path):
     assert c.displacement_mm.max() > 7.2 - 0.12 - 0.04
 
 
+def test_only_the_first_of_several_loadings_is_used(truth, primary, tmp_path):
+    t = np.concatenate([truth.t, truth.t + truth.t[-1] + 0.02])
+    multi = Truth(t, np.tile(truth.d, 2), np.concatenate([truth.f, 0.95 * truth.f]),
+                  truth.contact_mm, truth.tare_N, truth.noise_N)
+    c = load_cycle(write_log(tmp_path / "A1_t2_0.83mms.csv", multi))
+    assert any("loads again" in w for w in c.warnings)
+    np.testing.assert_allclose(c.force_N, primary.force_N, rtol=1e-8, atol=1e-7)
+    assert c.n_points - 1 + sum(s.n_points for s in c.trimmed) == len(t)
+
+
 # ---------------------------------------------------------------------------- bad input
 def _bad_campaign(folder: Path, truth) -> dict[str, str]:
     """Good files plus one file of every bad kind; returns {file: expected reason fragment}."""
@@ -368,6 +378,11 @@ def _bad_campaign(folder: Path, truth) -> dict[str, str]:
     expected["latin.csv"] = "undecodable"
     (folder / "empty.csv").write_bytes(b"")
     expected["empty.csv"] = "empty file"
+    (folder / "truth.json").write_text("{}")
+    expected["truth.json"] = "not a rig log (.json file)"
+    (folder / "B" / "sheet.xlsx").parent.mkdir()
+    (folder / "B" / "sheet.xlsx").write_bytes(b"PK\x03\x04")
+    expected["B/sheet.xlsx"] = "export the sheet as CSV"
     (folder / "A" / "deeper").mkdir()
     write_log(folder / "A" / "deeper" / "A3_t1_0.83mms.csv", truth)
     expected["A/deeper/"] = "nested deeper than one level"
