@@ -32,11 +32,15 @@ What one file goes through, in order:
    then to the layer folder; a missing rate is measured from the data (warning); a missing
    diameter or height defaults to 38 mm or 24 mm (warning). A missing sample or test number
    cannot be inferred and rejects the file.
-5. **Time base.** Rows with a missing value in a used column are dropped (warning). Rows are
-   put in time order when the time steps back by no more than twice the median sampling
-   interval (jitter, warning); a larger step back rejects the file. Rows sharing a time stamp
-   are averaged (exact duplicates dropped), and gaps longer than five sampling intervals are
-   listed (warnings).
+5. **Time base and glitches.** Rows with a missing value in a used column are dropped
+   (warning). A lone time stamp out of line with both neighbours (which agree) is a corrupt
+   stamp and its row is dropped (warning). Rows are put in time order when the time steps back
+   by no more than twice the median sampling interval (jitter, warning); a larger step back
+   (a restarted clock, two logs in one file) rejects the file. Rows sharing a time stamp are
+   averaged (exact duplicates dropped), and gaps longer than five sampling intervals are
+   listed (warnings). A lone displacement or force sample that jumps away from both neighbours
+   by more than 20 noise levels and five neighbouring steps, and straight back, is a sensor
+   spike and is dropped (warning); more than 1 % of such rows rejects the file.
 6. **Sign convention.** The force reading furthest from its starting value (after a
    5-sample running median, so one spike cannot decide) is the peak of compression: its sign
    relative to the start gives the force convention, and the direction the platen moved from
@@ -75,6 +79,7 @@ import dataclasses
 import math
 import os
 import re
+import shlex
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -609,6 +614,8 @@ def _parse_table(text: str) -> _Table:
     if header_text is None:
         header_text = lines[header_line]
     header = [c.strip().strip("\"'").strip() for c in _split(header_text, sep)]
+    if sep is None and len(header) != width:
+        header = _regroup(header_text)
     while header and not header[-1] and len(header) > width:
         header.pop()
     if units_row is not None:
@@ -644,6 +651,21 @@ def _parse_table(text: str) -> _Table:
                   _SEP_NAMES[sep])
 
 
+def _regroup(text: str) -> list[str]:
+    """Split a white-space separated header, keeping units with their names (``Time [s]``)."""
+    try:
+        tokens = shlex.split(text)
+    except ValueError:
+        tokens = text.split()
+    out: list[str] = []
+    for tok in tokens:
+        if out and (tok[:1] in "[({<" or tok in ("/",) or out[-1].endswith("/")):
+            out[-1] = f"{out[-1]} {tok}"
+        else:
+            out.append(tok)
+    return out
+
+
 def _put_meta(meta: dict, key: str, value: str, warnings: list, line: int) -> None:
     k = _norm_key(key)
     if not k:
@@ -660,7 +682,7 @@ def _norm_key(key: str) -> str:
 
 
 # ============================================================================ columns
-_BRACKET = re.compile(r"^(.*?)\s*[\[\(\{<]\s*([^\]\)\}>]*?)\s*[\]\)\}>]\s*(.*)$")
+_BRACKET = re.compile(r"[\[\(\{<]\s*([^\[\(\{<\]\)\}>]*?)\s*[\]\)\}>]")
 
 
 def _bare_unit(cell: str) -> str | None:
@@ -681,10 +703,13 @@ def _unit_key(unit: str) -> str:
 def _split_unit(header: str) -> tuple[str, str | None]:
     """``'Force (mN)'`` -> ``('Force', 'mN')``; ``'time_s'`` -> ``('time', 's')``."""
     h = header.strip()
-    m = _BRACKET.match(h)
-    if m:
-        name = f"{m.group(1)} {m.group(3)}".strip()
-        return name, m.group(2).strip()
+    groups = list(_BRACKET.finditer(h))
+    if groups:
+        # the bracket holding a known unit; otherwise the last one (an unknown unit)
+        known = [g for g in groups if _unit_kind(g.group(1))]
+        g = known[-1] if known else groups[-1]
+        name = " ".join((h[: g.start()] + " " + h[g.end():]).split())
+        return name, g.group(1).strip()
     if "/" in h:
         name, _, unit = h.rpartition("/")
         if name.strip() and unit.strip() and " " not in unit.strip():

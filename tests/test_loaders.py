@@ -165,6 +165,8 @@ VARIANTS = {
     "utf16": dict(encoding="utf-16"),
     "units_row": dict(header=("Time", "Extension", "Load"), units_row=("(s)", "(mm)", "(N)")),
     "commented_header_savetxt": dict(comment_header=True),
+    "whitespace_separated": dict(sep=" ", header=("Time [s]", "Position (absolute) [mm]",
+                                                  "Force [N]")),
     "micro_sign_unit": dict(header=("t (s)", "Deflection (\u00b5m)", "F (N)"),
                             scale=(1.0, 1e3, 1.0)),
 }
