@@ -473,8 +473,11 @@ def _decode(raw: bytes) -> tuple[str, list[str]]:
     return text, warnings
 
 
+_CONTROL = re.compile(r"[\x00-\x08\x0e-\x1f\x7f]")
+
+
 def _control_chars(text: str) -> int:
-    return sum(1 for ch in text if (ord(ch) < 32 and ch not in "\t\n\r\f\v") or ch == "\x7f")
+    return len(_CONTROL.findall(text))
 
 
 def _split(line: str, sep) -> list[str]:
