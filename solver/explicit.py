@@ -495,7 +495,7 @@ def simulate(
     anchor = np.zeros((n_nodes, dim))
     fix_tangent = np.ascontiguousarray(sets["axis"])
     s_prev = np.zeros((mesh.n_cells, 4))
-    hist = np.zeros((mesh.n_cells, g.shape[1], 4))
+    hist = np.zeros((mesh.n_cells, 4, g.shape[1]))
     decay, gain = _prony_factors(tau, dt)
     energy_acc = np.zeros(3)
     kinetic0 = 0.5 * float(np.einsum("n,na,na->", mass, v, v))

@@ -49,7 +49,7 @@ import math
 import numpy as np
 
 from ._jit import njit
-from .materials import ogden_energy, ogden_kirchhoff
+from .materials import ogden_energy, ogden_kirchhoff, prony_relaxed
 
 __all__ = ["AxisymmetricOperators", "axisymmetric_operators", "axisym_forces", "axisym_energy"]
 
@@ -205,7 +205,7 @@ def axisym_forces(
     decay,  # (n_mat, n_prony) exp(-dt / tau_k)
     gain,  # (n_mat, n_prony) (1 - decay) / (dt / tau_k)
     s_prev,  # (n_elem, 4) instantaneous isochoric PK2 (rr, zz, rz, tt) at the last update
-    hist,  # (n_elem, n_prony, 4) Prony history variables (Pa)
+    hist,  # (n_elem, 4, n_prony) Prony history variables (Pa)
     update_history,  # bool: advance the Prony recursion (once per time step)
     f,  # (n_nodes, 2) output: internal nodal forces (N), overwritten
 ):
@@ -242,33 +242,20 @@ def axisym_forces(
         s11, s22, s12 = _inplane_pk2(C11, C22, C12, c1, c2, t1 / c1, t2 / c2)
         stt = t3 / (Ftt * Ftt)
         if n_prony > 0:
-            ginf = 1.0
-            r11 = 0.0
-            r22 = 0.0
-            r12 = 0.0
-            rtt = 0.0
-            for k in range(n_prony):
-                ginf -= g[m, k]
-                if update_history:
-                    d = decay[m, k]
-                    c = gain[m, k]
-                    hist[e, k, 0] = d * hist[e, k, 0] + c * (s11 - s_prev[e, 0])
-                    hist[e, k, 1] = d * hist[e, k, 1] + c * (s22 - s_prev[e, 1])
-                    hist[e, k, 2] = d * hist[e, k, 2] + c * (s12 - s_prev[e, 2])
-                    hist[e, k, 3] = d * hist[e, k, 3] + c * (stt - s_prev[e, 3])
-                r11 += g[m, k] * hist[e, k, 0]
-                r22 += g[m, k] * hist[e, k, 1]
-                r12 += g[m, k] * hist[e, k, 2]
-                rtt += g[m, k] * hist[e, k, 3]
+            r11 = prony_relaxed(s11, s_prev[e, 0], hist[e, 0], g[m], decay[m], gain[m],
+                                update_history)
+            r22 = prony_relaxed(s22, s_prev[e, 1], hist[e, 1], g[m], decay[m], gain[m],
+                                update_history)
+            r12 = prony_relaxed(s12, s_prev[e, 2], hist[e, 2], g[m], decay[m], gain[m],
+                                update_history)
+            rtt = prony_relaxed(stt, s_prev[e, 3], hist[e, 3], g[m], decay[m], gain[m],
+                                update_history)
             if update_history:
                 s_prev[e, 0] = s11
                 s_prev[e, 1] = s22
                 s_prev[e, 2] = s12
                 s_prev[e, 3] = stt
-            s11 = ginf * s11 + r11
-            s22 = ginf * s22 + r22
-            s12 = ginf * s12 + r12
-            stt = ginf * stt + rtt
+            s11, s22, s12, stt = r11, r22, r12, rtt
         # volumetric PK2: tvol C^-1
         det_c = C11 * C22 - C12 * C12
         S11 = s11 + tvol * C22 / det_c

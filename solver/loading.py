@@ -50,6 +50,8 @@ class CompressionTest:
     ramp : {"345", "constant"}
         Travel history: the smooth 3-4-5 polynomial, or constant speed as the rig moves from
         the contact point on.
+    hold_s : float
+        Hold at the final travel after the ramp (s), e.g. for relaxation.
     """
 
     diameter_mm: float = 38.0
@@ -59,6 +61,7 @@ class CompressionTest:
     platen: str = "bonded"
     friction: float = 0.0
     ramp: str = "345"
+    hold_s: float = 0.0
 
     def __post_init__(self):
         for name in ("diameter_mm", "height_mm", "rate_mm_per_s"):
@@ -74,6 +77,8 @@ class CompressionTest:
         if self.platen == "coulomb" and self.friction == 0.0:
             raise ValueError("platen='coulomb' needs a positive friction coefficient "
                              "(use platen='frictionless' for zero friction)")
+        if not (np.isfinite(self.hold_s) and self.hold_s >= 0.0):
+            raise ValueError(f"hold_s={self.hold_s} must be a non-negative number")
         if self.ramp not in ("345", "constant"):
             raise ValueError(f"ramp={self.ramp!r} is not '345' or 'constant'")
 
@@ -100,7 +105,15 @@ class CompressionTest:
         return 0.0 if self.ramp == "345" else 1e-3 * self.rate_mm_per_s
 
     def output_times(self, n: int) -> np.ndarray:
-        """``n`` times (s) from 0 to the end of the ramp at equal travel increments."""
+        """Output times (s): ``n`` from 0 to the end of the ramp at equal travel increments,
+        then, with a hold, ``max(10, n // 2)`` more at equal time increments over the hold."""
+        ramp = self._ramp_output_times(n)
+        if self.hold_s == 0.0:
+            return ramp
+        hold = np.linspace(0.0, self.hold_s, max(10, n // 2) + 1)[1:]
+        return np.concatenate([ramp, self.ramp_time_s + hold])
+
+    def _ramp_output_times(self, n: int) -> np.ndarray:
         levels = np.linspace(0.0, 1.0, n)
         if self.ramp == "constant":
             return levels * self.ramp_time_s

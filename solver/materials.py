@@ -427,3 +427,44 @@ def ogden_energy(lam1, lam2, lam3, mu, alpha, K):
         a = alpha[i]
         W += 2.0 * mu[i] / (a * a) * (math.exp(a * l1) + math.exp(a * l2) + math.exp(a * l3) - 3.0)
     return W
+
+
+@njit
+def prony_relaxed(s0, s0_prev, h, g, decay, gain, update):
+    r"""Relaxed value of one isochoric stress component (recursive Prony update).
+
+    With the instantaneous isochoric stress :math:`S_0(t)` (computed with the instantaneous
+    moduli), the relaxed stress is the hereditary integral
+
+    .. math::
+
+        S(t) = g_\infty S_0(t) + \sum_k g_k h_k(t), \qquad
+        h_k(t) = \int_0^t e^{-(t-s)/\tau_k} \dot S_0(s)\,ds,
+
+    advanced over a step :math:`\Delta t` by the standard recursion, exact when :math:`S_0`
+    varies linearly within the step:
+    :math:`h_k \leftarrow e^{-\Delta t/\tau_k} h_k
+    + \frac{1 - e^{-\Delta t/\tau_k}}{\Delta t/\tau_k} (S_0^{n+1} - S_0^n)`.
+
+    Parameters
+    ----------
+    s0, s0_prev : float
+        Instantaneous stress component now and at the previous update (Pa).
+    h : ndarray, shape (n_prony,)
+        History variables of this component (Pa), advanced in place if ``update``.
+    g, decay, gain : ndarray, shape (n_prony,)
+        Relative moduli, :math:`e^{-\Delta t/\tau_k}` and the gain factor.
+    update : bool
+        Advance the history (once per time step) or only evaluate.
+
+    Returns
+    -------
+    float
+        :math:`S(t)` (Pa).
+    """
+    out = s0
+    for k in range(g.shape[0]):
+        if update:
+            h[k] = decay[k] * h[k] + gain[k] * (s0 - s0_prev)
+        out += g[k] * (h[k] - s0)
+    return out
