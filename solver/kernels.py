@@ -127,7 +127,7 @@ def axisymmetric_operators(points: np.ndarray, cells: np.ndarray) -> Axisymmetri
         inv[:, 1, 1] = Jac[:, 0, 0] / det
         inv[:, 0, 1] = -Jac[:, 0, 1] / det
         inv[:, 1, 0] = -Jac[:, 1, 0] / det
-        dNdX = np.einsum("ia,eab->eib", dN, inv)  # (n_elem, 4, 2)
+        dNdX = np.einsum("ia,eba->eib", dN, inv)  # dN/dX_b = sum_a inv[b, a] dN/dxi_a
         r = X[:, :, 0] @ N  # (n_elem,)
         w = 2.0 * np.pi * r * det
         vol += w

@@ -1,0 +1,161 @@
+"""JIT kernels against their NumPy twins, the patch test, and the linearised stiffness."""
+
+import numpy as np
+import pytest
+
+from solver.kernels import axisym_energy, axisym_forces, axisymmetric_operators
+from solver.materials import Ogden
+from solver.mesh import axisymmetric_cylinder, graded_spacing
+from solver.stiffness import assemble, element_stiffness
+
+from .reference import axisym_energy_numpy, axisym_forces_numpy, distorted_axisym_mesh
+
+MATERIAL = Ogden(mu_Pa=1875.0, alpha=4.9, nu=0.49)
+
+
+def _setup(distort=0.25, seed=0, n=(6, 7)):
+    base = axisymmetric_cylinder(38.0, 24.0, *n)
+    rng = np.random.default_rng(seed)
+    points = distorted_axisym_mesh(base.points, base.cells, distort, rng)
+    ops = axisymmetric_operators(points, base.cells)
+    return points, base.cells, ops, rng
+
+
+def _kernel_forces(u, cells, ops, material, k_hg):
+    mu, alpha, K, _, _ = material.kernel_arrays()
+    n = len(cells)
+    f = np.zeros_like(u)
+    status = axisym_forces(u, cells, ops.bbar, ops.hbar, ops.volume, ops.gamma, k_hg,
+                           np.zeros(n, np.int32), mu[None], alpha[None], np.array([K]),
+                           np.zeros((1, 0)), np.zeros((1, 0)), np.zeros((1, 0)),
+                           np.zeros((n, 4)), np.zeros((n, 4, 0)), False, f)
+    return status, f
+
+
+def _random_state(points, rng, scale=0.08):
+    """A smooth random finite deformation (up to ~15 % strain) plus small noise."""
+    R, H = points[:, 0].max(), points[:, 1].max()
+    r, z = points[:, 0] / R, points[:, 1] / H
+    a = rng.uniform(-1, 1, 6) * scale
+    ur = R * r * (a[0] + a[1] * z + a[2] * z**2)
+    uz = H * (a[3] * z + a[4] * r**2 + a[5] * r * z)
+    u = np.column_stack([ur, uz])
+    u += rng.normal(0, 0.01 * scale * H, u.shape) * (points[:, [0]] > 0)
+    u[points[:, 0] == 0, 0] = 0.0
+    return u
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_force_kernel_matches_numpy_twin(seed):
+    points, cells, ops, rng = _setup(seed=seed)
+    k_hg = 0.1 * MATERIAL.mu0_Pa * ops.gamma_scale
+    for material in (MATERIAL, Ogden(mu_Pa=(1200.0, -300.0), alpha=(9.0, -3.0), nu=0.45)):
+        u = _random_state(points, rng)
+        status, f = _kernel_forces(u, cells, ops, material, k_hg)
+        assert status == (0, -1)
+        ref = axisym_forces_numpy(u, cells, ops, material, k_hg)
+        np.testing.assert_allclose(f, ref, atol=1e-10 * np.abs(ref).max())
+        mu, alpha, K, _, _ = material.kernel_arrays()
+        W, Whg = axisym_energy(u, cells, ops.bbar, ops.hbar, ops.volume, ops.gamma, k_hg,
+                               np.zeros(len(cells), np.int32), mu[None], alpha[None],
+                               np.array([K]))
+        W_ref, Whg_ref = axisym_energy_numpy(u, cells, ops, material, k_hg)
+        assert W == pytest.approx(W_ref, rel=1e-10)
+        assert Whg == pytest.approx(Whg_ref, rel=1e-10)
+
+
+def test_forces_are_the_energy_gradient():
+    """The kernel's forces are the exact derivative of the energy kernel (central differences)."""
+    points, cells, ops, rng = _setup(seed=5)
+    k_hg = 0.1 * MATERIAL.mu0_Pa * ops.gamma_scale
+    u = _random_state(points, rng)
+    _, f = _kernel_forces(u, cells, ops, MATERIAL, k_hg)
+    mu, alpha, K, _, _ = MATERIAL.kernel_arrays()
+
+    def energy(uu):
+        W, Whg = axisym_energy(uu, cells, ops.bbar, ops.hbar, ops.volume, ops.gamma, k_hg,
+                               np.zeros(len(cells), np.int32), mu[None], alpha[None],
+                               np.array([K]))
+        return W + Whg
+
+    h = 1e-9
+    for node in rng.choice(np.flatnonzero(points[:, 0] > 0), 12, replace=False):
+        for a in range(2):
+            up, dn = u.copy(), u.copy()
+            up[node, a] += h
+            dn[node, a] -= h
+            fd = (energy(up) - energy(dn)) / (2 * h)
+            # rounding of the energy sum (~1e-16 * W / h) bounds the finite difference error
+            assert f[node, a] == pytest.approx(fd, abs=1e-6 * np.abs(f).max())
+
+
+@pytest.mark.parametrize("stretch", [(0.7, 1.18), (1.0, 1.0), (1.1, 0.8)])
+def test_patch_test_homogeneous_deformation(stretch):
+    """Rung 2: a homogeneous deformation on a distorted mesh gives zero interior forces.
+
+    The deformation u_r = (l_r - 1) r, u_z = (l_z - 1) z also stretches the hoop direction by
+    l_r; (1.0, 1.0) with a rigid translation in z checks that a rigid motion is force-free.
+    """
+    points, cells, ops, _ = _setup(distort=0.3, seed=3, n=(7, 8))
+    lr, lz = stretch
+    u = np.column_stack([(lr - 1) * points[:, 0], (lz - 1) * points[:, 1] + 1e-3])
+    k_hg = 0.1 * MATERIAL.mu0_Pa * ops.gamma_scale
+    _, f = _kernel_forces(u, cells, ops, MATERIAL, k_hg)
+    from solver.mesh import Mesh
+
+    interior = ~Mesh(points=points, cells=cells, cell_type="quad").boundary_nodes()
+    assert interior.sum() > 20
+    # force scale: the boundary forces of a 10 % compression of the same mesh
+    u10 = np.column_stack([0.05 * points[:, 0], -0.1 * points[:, 1]])
+    scale = np.abs(_kernel_forces(u10, cells, ops, MATERIAL, k_hg)[1]).max()
+    # exact up to rounding: every term cancels algebraically
+    assert np.abs(f[interior]).max() <= 1e-10 * scale
+    # the top-face reaction equals the closed-form stress times the area
+    if stretch == (0.7, 1.18):
+        tau = MATERIAL.kirchhoff_stress([lr, lz, lr])
+        P_zz = tau[1] / lz
+        top = np.isclose(points[:, 1], points[:, 1].max())
+        area = np.pi * points[:, 0].max() ** 2
+        assert f[top, 1].sum() == pytest.approx(P_zz * area, rel=1e-10)
+
+
+def test_kernel_jacobian_matches_linear_stiffness():
+    """Finite differences of the force kernel at the reference state equal the assembled
+    small-strain stiffness used for the natural period and the influence field."""
+    points, cells, ops, rng = _setup(seed=7)
+    shear = np.full(len(cells), MATERIAL.mu0_Pa)
+    bulk = np.full(len(cells), MATERIAL.bulk_modulus_Pa)
+    k_hg = 0.1 * MATERIAL.mu0_Pa * ops.gamma_scale
+    K = assemble(cells, element_stiffness(ops, shear, bulk, k_hg), len(points)).toarray()
+    u0 = np.zeros_like(points)
+    h = 1e-9 * points[:, 1].max()
+    for dof in rng.choice(np.flatnonzero(np.repeat(points[:, 0] > 0, 2)), 15, replace=False):
+        up, dn = u0.copy().ravel(), u0.copy().ravel()
+        up[dof] += h
+        dn[dof] -= h
+        _, fp = _kernel_forces(up.reshape(-1, 2), cells, ops, MATERIAL, k_hg)
+        _, fm = _kernel_forces(dn.reshape(-1, 2), cells, ops, MATERIAL, k_hg)
+        column = (fp - fm).ravel() / (2 * h)
+        np.testing.assert_allclose(column, K[:, dof], atol=1e-6 * np.abs(K).max())
+
+
+def test_inverted_element_is_reported():
+    points, cells, ops, _ = _setup(distort=0.0)
+    u = np.zeros_like(points)
+    e = 10
+    a, b = cells[e, 0], cells[e, 2]
+    u[a] = points[b] - points[a] + 1e-3  # push node 0 beyond node 2: the element folds
+    status, _ = _kernel_forces(u, cells, ops, MATERIAL, np.zeros(len(cells)))
+    assert status[0] == 1 and e in {status[1]} | set(
+        np.flatnonzero((cells == a).any(axis=1)))
+
+
+def test_graded_spacing():
+    x = graded_spacing(1.0, 6, 4.0)
+    h = np.diff(x)
+    assert x[0] == 0 and x[-1] == pytest.approx(1.0)
+    assert h[0] / h[-1] == pytest.approx(4.0) and np.all(np.diff(h) < 0)
+    y = graded_spacing(2.0, 7, 3.0, two_sided=True)
+    hy = np.diff(y)
+    np.testing.assert_allclose(hy, hy[::-1])
+    assert hy.max() / hy.min() == pytest.approx(3.0)
