@@ -113,7 +113,8 @@ class LinearFit:
         Slope of nominal stress against nominal strain (Pa); for a rig cycle this is the
         APPARENT modulus of the bonded sample.
     E_stderr_Pa : float
-        OLS standard error of the slope (Pa).
+        Standard error of the slope (Pa): OLS, with the variance inflated by
+        :math:`(1 + r) / (1 - r)` for noise with lag-one autocorrelation :math:`r`.
     intercept_Pa : float
         Stress at zero strain of the line (Pa); non-zero where the contact point or tare is off.
     linear_region_strain : tuple of float
@@ -280,8 +281,9 @@ def _window_quadratic(eps: np.ndarray, sig: np.ndarray) -> tuple[float, float, f
     return float(b), float(delta), se_delta, math.sqrt(s2)
 
 
-def _line(eps: np.ndarray, sig: np.ndarray) -> tuple[float, float, float, float]:
-    """OLS line: slope, its standard error, intercept, residual RMS."""
+def _line(eps: np.ndarray, sig: np.ndarray,
+          inflation: float = 1.0) -> tuple[float, float, float, float]:
+    """OLS line: slope, its standard error (variance times ``inflation``), intercept, RMS."""
     xm = eps.mean()
     dx = eps - xm
     sxx = float(dx @ dx)
@@ -290,7 +292,47 @@ def _line(eps: np.ndarray, sig: np.ndarray) -> tuple[float, float, float, float]
     resid = sig - intercept - slope * eps
     dof = max(eps.size - 2, 1)
     s2 = float(resid @ resid) / dof
-    return slope, math.sqrt(s2 / sxx), intercept, math.sqrt(s2)
+    return slope, math.sqrt(inflation * s2 / sxx), intercept, math.sqrt(s2)
+
+
+def _noise(eps: np.ndarray, sig: np.ndarray, min_points: int) -> tuple[float, float]:
+    """Stress noise level and the variance inflation of its serial correlation.
+
+    Cubic fits in consecutive groups of samples (at least ``min_points``, up to 128, at most
+    half the samples; long groups keep the fit from absorbing the noise's own slow part) give
+    pooled residuals; their RMS is the noise :math:`s` and their lag-one autocorrelation
+    :math:`r` (in strain order, which is time order on a loading branch) gives the factor
+    :math:`(1 + r) / (1 - r)` by which AR(1)-like noise (a filtered load cell) inflates the
+    variance of a slope over many samples, clipped to [1, 20].
+
+    Parameters
+    ----------
+    eps, sig : ndarray, shape (n,)
+        Strain (sorted) and stress (Pa).
+    min_points : int
+        Smallest group.
+
+    Returns
+    -------
+    noise_Pa, inflation : float
+    """
+    group = max(min_points, min(128, eps.size // 2))
+    ss, dof, lag, norm = 0.0, 0, 0.0, 0.0
+    for j in range(0, eps.size - group + 1, group):
+        e, y = eps[j:j + group], sig[j:j + group]
+        if e[-1] <= e[0]:
+            continue
+        u = (e - 0.5 * (e[0] + e[-1])) / (0.5 * (e[-1] - e[0]))
+        X = np.column_stack([np.ones_like(u), u, u * u, u**3])
+        resid = y - X @ np.linalg.lstsq(X, y, rcond=None)[0]
+        ss += float(resid @ resid)
+        dof += e.size - 4
+        lag += float(resid[1:] @ resid[:-1])
+        norm += float(resid @ resid)
+    if dof == 0 or norm == 0.0:
+        return 0.0, 1.0
+    r = lag / norm
+    return math.sqrt(ss / dof), min(max((1.0 + r) / (1.0 - r), 1.0), 20.0) if r < 1.0 else 20.0
 
 
 def _quadratic_curvature(eps: np.ndarray, sig: np.ndarray) -> tuple[float, float, float]:
@@ -313,6 +355,7 @@ def estimate_modulus(
     stiffening: float = 3.0,
     mismatch: float = 0.5,
     z: float = 1.0,
+    toe_factor: float = 4.0,
     min_width: float = 0.01,
     min_points: int = 8,
     max_strain: float = 0.12,
@@ -341,6 +384,9 @@ def estimate_modulus(
         deliberately strict: a false alarm only moves the window up one step (and the
         correction factor is matched to the window), while a missed toe biases the slope
         low.
+    toe_factor : float
+        The region starts no earlier than this multiple of the toe's strain deficit (toe
+        compensation, see Notes; 0 switches it off).
     min_width : float
         Narrowest window (strain).
     min_points : int
@@ -398,6 +444,16 @@ def estimate_modulus(
         (E_B - E_A) - (E_C - E_B) > \text{mismatch}\; w\, E_A
         + z \sqrt{\mathrm{SE}_A^2 + 4\,\mathrm{SE}_B^2 + \mathrm{SE}_C^2}.
 
+    *Toe compensation*. A toe, whose tangent rises from below the linear slope to it, leaves
+    the data's starting stress :math:`\sigma_s` above the region's line extrapolated back to
+    the start: the strain deficit :math:`D = (\sigma_s - \sigma_0) / E` (the toe-compensated
+    zero of ASTM D695 when the data start at zero stress). A toe spans :math:`D` if it is a
+    step, :math:`2D` or more if the tangent rises linearly, and :math:`3D` for 95 % of an
+    exponential rise, so the search restarts at ``toe_factor`` :math:`D` while the region
+    starts below that. Without a toe (also with contact found late, the data starting on
+    the linear part) :math:`D \approx 0`. :math:`\sigma_s` is the mean stress of the samples
+    within one grid ``step`` of the first strain (at most ``min_points``).
+
     A gradual toe decaying over a strain :math:`\varepsilon_t` leaves a remnant that the
     noise hides: with 3 mN load-cell noise and a bonded Ogden curve it biased the slope low
     by 1-5 % for :math:`\varepsilon_t = 0.003-0.006` (0.07-0.14 mm of travel), the more so
@@ -418,11 +474,11 @@ def estimate_modulus(
     if min_points < 6:
         raise ModulusError(f"min_points={min_points} must be at least 6")
     if not (0.0 < min_width <= max_width and min_width < max_strain and step > 0.0
-            and stiffening >= 0.0 and mismatch >= 0.0 and z >= 0.0):
+            and stiffening >= 0.0 and mismatch >= 0.0 and z >= 0.0 and toe_factor >= 0.0):
         raise ModulusError(
             f"estimator settings out of range: min_width={min_width}, max_width={max_width}, "
             f"max_strain={max_strain}, step={step}, stiffening={stiffening}, "
-            f"mismatch={mismatch}, z={z}")
+            f"mismatch={mismatch}, z={z}, toe_factor={toe_factor}")
     finite = np.isfinite(eps) & np.isfinite(sig)
     if not finite.all():
         raise ModulusError(f"{int((~finite).sum())} of {eps.size} samples are not finite")
@@ -444,16 +500,9 @@ def estimate_modulus(
     def snap(width: float) -> float:
         return step * math.ceil(width / step - 1e-9)
 
-    # stress noise, pooled from quadratic fits in consecutive groups of min_points samples
     below = int(np.searchsorted(eps, top + tiny, "right"))
-    ss, dof = 0.0, 0
-    for j in range(0, below - min_points + 1, min_points):
-        e, y = eps[j:j + min_points], sig[j:j + min_points]
-        if e[-1] > e[0]:
-            rms = _window_quadratic(e, y)[3]
-            ss += rms**2 * (e.size - 3)
-            dof += e.size - 3
-    noise = math.sqrt(ss / dof) if dof else 0.0
+    noise, inflation = _noise(eps[:below], sig[:below], min_points)
+    noise *= math.sqrt(inflation)  # effective white-noise level for slopes and widths
 
     def narrowest(lo: float) -> float:
         """Narrowest grid width from lo holding min_width and min_points."""
@@ -479,37 +528,55 @@ def estimate_modulus(
             w = max(w_min, min(snap(w_opt), max_width, top - lo))
         return w
 
+    def search(first: float) -> tuple[float, float] | None:
+        """Lowest window from ``first`` on that is not part of a toe (see Notes)."""
+        for i in range(int(math.ceil((top - first) / step)) + 1):
+            lo = first + i * step
+            w = width(lo)
+            if lo + w > top + tiny:
+                return None
+            a = window(lo, lo + w)
+            slope_a, se_a, *_ = _line(eps[a], sig[a], inflation)
+            if not slope_a > 0.0:
+                continue
+            slopes = [(slope_a, se_a)]
+            for j in (1, 2):  # the next two windows of the same width, where they fit
+                nxt = window(lo + j * w, lo + (j + 1) * w)
+                if (nxt.stop - nxt.start < max(4, min_points // 2)
+                        or eps[nxt.stop - 1] - eps[nxt.start] < 0.5 * w):
+                    break
+                slopes.append(_line(eps[nxt], sig[nxt], inflation)[:2])
+            toe = False  # nothing above the window to compare with: accept it
+            if len(slopes) >= 2:
+                (ea, sa), (eb, sb) = slopes[:2]
+                # the tangent rises faster than any smooth stiffening of the material
+                toe = eb - ea > stiffening * w * ea + z * math.hypot(sa, sb)
+            if len(slopes) == 3 and not toe:
+                ec, sc = slopes[2]
+                # or it rises faster into the next window than beyond it (concave: a toe)
+                excess = (eb - ea) - (ec - eb)
+                toe = excess > mismatch * w * ea + z * math.sqrt(sa**2 + 4.0 * sb**2 + sc**2)
+            if not toe:
+                return lo, lo + w
+        return None
+
     first = max(0.0, step * math.floor(float(eps[0]) / step))
-    region = None
-    for i in range(int(math.ceil((top - first) / step)) + 1):
-        lo = first + i * step
-        w = width(lo)
-        if lo + w > top + tiny:
+    region = search(first)
+    # toe compensation (see Notes): the stress where the data start, from a line through the
+    # first samples, against the region's line extrapolated there
+    head = slice(0, max(1, min(min_points, int(np.searchsorted(eps, eps[0] + step, "right")))))
+    for _ in range(5):
+        if region is None:
             break
-        a = window(lo, lo + w)
-        slope_a, se_a, *_ = _line(eps[a], sig[a])
-        if not slope_a > 0.0:
-            continue
-        slopes = [(slope_a, se_a)]
-        for j in (1, 2):  # the next two windows of the same width, where they fit
-            nxt = window(lo + j * w, lo + (j + 1) * w)
-            if (nxt.stop - nxt.start < max(4, min_points // 2)
-                    or eps[nxt.stop - 1] - eps[nxt.start] < 0.5 * w):
-                break
-            slopes.append(_line(eps[nxt], sig[nxt])[:2])
-        toe = False  # nothing above the window to compare with: accept it
-        if len(slopes) >= 2:
-            (ea, sa), (eb, sb) = slopes[:2]
-            # the tangent rises faster than any smooth stiffening of the material
-            toe = eb - ea > stiffening * w * ea + z * math.hypot(sa, sb)
-        if len(slopes) == 3 and not toe:
-            ec, sc = slopes[2]
-            # or it rises faster into the next window than beyond it (concave: a toe)
-            excess = (eb - ea) - (ec - eb)
-            toe = excess > mismatch * w * ea + z * math.sqrt(sa**2 + 4.0 * sb**2 + sc**2)
-        if not toe:
-            region = (lo, lo + w)
+        s = window(*region)
+        slope, _, intercept, _ = _line(eps[s], sig[s])
+        # mean stress of the head, carried back to the first strain along the region's slope
+        start_stress = float(np.mean(sig[head] - slope * (eps[head] - eps[0])))
+        deficit = (start_stress - intercept - slope * float(eps[0])) / slope
+        floor = step * round(toe_factor * max(deficit, 0.0) / step)
+        if floor <= region[0] + tiny:
             break
+        region = search(floor)
     if region is None:
         raise ModulusError(
             f"no linear region: every strain window below {top:.3f} has a tangent modulus "
@@ -518,7 +585,7 @@ def estimate_modulus(
             f"errors")
     lo, hi = region
     s = window(lo, hi)
-    slope, se, intercept, rms = _line(eps[s], sig[s])
+    slope, se, intercept, rms = _line(eps[s], sig[s], inflation)
     _, delta, se_delta, _ = _window_quadratic(eps[s], sig[s])
     return LinearFit(
         E_Pa=slope, E_stderr_Pa=se, intercept_Pa=intercept,
