@@ -76,7 +76,7 @@ from .stiffness import (
 __all__ = ["simulate", "SimulationResult", "SolverInstability", "DEFAULT_QUASI_STATIC_RATIO"]
 
 #: Default ramp time over the lowest natural period (see the quasi-static tests).
-DEFAULT_QUASI_STATIC_RATIO = 4.0
+DEFAULT_QUASI_STATIC_RATIO = 6.0
 
 #: Contact states of a node.
 FREE, BOTTOM, TOP = 0, 1, 2
@@ -127,7 +127,8 @@ class SimulationResult:
     energy : dict of ndarray, shape (n_out,)
         ``external_J`` (work of the platen constraints), ``internal_J`` (path integral of the
         internal forces), ``strain_J`` (elastic energy stored in the state, long-term moduli),
-        ``hourglass_J``, ``kinetic_J``, ``friction_J`` (work of friction forces, <= 0).
+        ``hourglass_J``, ``kinetic_J``, ``friction_J`` (work of friction forces, <= 0),
+        ``damping_J`` (work of the hold's damping forces, >= 0; zero without a hold).
     contact_radius_mm : ndarray, shape (n_out,)
         Current radius of the contact area on the top platen (mm).
     mesh : Mesh
@@ -214,7 +215,8 @@ def _nodal_update(
     z_top,  # height of the top platen at t_{n+1} (m)
     dt,  # step t_n -> t_{n+1} (s)
     dt_avg,  # (dt_prev + dt) / 2 (s)
-    energy,  # (3,) accumulated internal work, constraint work, friction work (J)
+    damp,  # mass-proportional damping (1/s), zero while the platen moves
+    energy,  # (4,) accumulated internal, constraint, friction and damping work (J)
 ):
     """Central-difference update of every node with kinematic platen constraints."""
     n_nodes, dim = u.shape
@@ -222,13 +224,14 @@ def _nodal_update(
     w_int = 0.0
     w_c = 0.0
     w_f = 0.0
+    w_d = 0.0
     for i in range(n_nodes):
         m = mass[i]
         scale = dt * dt_avg / m  # displacement per unit force over this step
         # trial (unconstrained) update
         for a in range(dim):
             f_c[i, a] = 0.0
-        zt = u[i, nz] + dt * (v[i, nz] - dt_avg * f_int[i, nz] / m)
+        zt = u[i, nz] + dt * (v[i, nz] - dt_avg * (f_int[i, nz] / m + damp * v[i, nz]))
         z_new = X[i, nz] + zt
         st = state[i]
         if st == FREE and candidate[i]:
@@ -238,7 +241,7 @@ def _nodal_update(
                 st = TOP
             if st != FREE:
                 for a in range(nz):
-                    anchor[i, a] = u[i, a] + dt * (v[i, a] - dt_avg * f_int[i, a] / m)
+                    anchor[i, a] = u[i, a] + dt * (v[i, a] - dt_avg * (f_int[i, a] / m + damp * v[i, a]))
         uz_next = zt
         if st != FREE:
             target = -X[i, nz] if st == BOTTOM else z_top - X[i, nz]
@@ -255,7 +258,7 @@ def _nodal_update(
         trial_t = 0.0
         stick_t = 0.0
         for a in range(nz):
-            ut = u[i, a] + dt * (v[i, a] - dt_avg * f_int[i, a] / m)
+            ut = u[i, a] + dt * (v[i, a] - dt_avg * (f_int[i, a] / m + damp * v[i, a]))
             if fix_tangent[i]:
                 f_c[i, a] = -ut / scale
             elif st != FREE and mode != FRICTIONLESS:
@@ -270,12 +273,14 @@ def _nodal_update(
         # apply: u^{n+1} = trial + scale f_c ; v^{n+1/2} = (u^{n+1} - u^n) / dt
         for a in range(dim):
             v_old = v[i, a]
-            v_new = v_old - dt_avg * (f_int[i, a] - f_c[i, a]) / m
+            f_d = damp * m * v_old
+            v_new = v_old - dt_avg * (f_int[i, a] + f_d - f_c[i, a]) / m
             u[i, a] += dt * v_new
             v[i, a] = v_new
             delta = 0.5 * dt_avg * (v_new + v_old)
             w_int += f_int[i, a] * delta
             w_c += f_c[i, a] * delta
+            w_d += f_d * delta
             if a < nz and st != FREE and mode == COULOMB:
                 w_f += f_c[i, a] * delta
         if st != FREE and mode == COULOMB and stick_t > mu_f * fn:
@@ -284,11 +289,12 @@ def _nodal_update(
     energy[0] += w_int
     energy[1] += w_c
     energy[2] += w_f
+    energy[3] += w_d
 
 
 @njit
 def _advance_axisym(
-    t_stop, t, dt, dt_prev, kind, T, D, t_table, d_table, H,
+    t_stop, t, dt, dt_prev, kind, T, D, t_table, d_table, H, hold_damping,
     u, v, f_int, f_c, mass, X, fix_tangent, state, glued, candidate, anchor, mode, mu_f,
     conn, bbar, hbar, vol, gamma, k_hg, mat, mu, alpha, K, g, decay, gain, s_prev, hist,
     u_eval, energy,
@@ -317,8 +323,9 @@ def _advance_axisym(
         u_eval[:] = u
         t_eval = t
         z_top = H - travel(t + dt, kind, T, D, t_table, d_table)
+        damp = hold_damping if t >= T else 0.0
         _nodal_update(u, v, f_int, f_c, mass, X, fix_tangent, state, glued, candidate, anchor,
-                      mode, mu_f, z_top, dt, 0.5 * (dt_prev + dt), energy)
+                      mode, mu_f, z_top, dt, 0.5 * (dt_prev + dt), damp, energy)
         dt_prev = dt
         t = t + dt
         steps += 1
@@ -360,7 +367,7 @@ def simulate(
     *,
     quasi_static_ratio: float = DEFAULT_QUASI_STATIC_RATIO,
     n_out: int = 61,
-    hourglass: float = 0.1,
+    hourglass: float = 0.05,
     mass_scaling: bool = True,
     mass_scaling_quantile: float = 0.1,
     dt_safety: float = 0.8,
@@ -497,21 +504,25 @@ def simulate(
     s_prev = np.zeros((mesh.n_cells, 4))
     hist = np.zeros((mesh.n_cells, 4, g.shape[1]))
     decay, gain = _prony_factors(tau, dt)
-    energy_acc = np.zeros(3)
+    energy_acc = np.zeros(4)
+    # during a hold the platen is still: damp the lowest mode critically (dynamic relaxation),
+    # which leaves the quasi-static state alone and removes the ring-down of the stop
+    hold_damping = 2.0 * math.sqrt(omega2_1 / rho_ratio)
     kinetic0 = 0.5 * float(np.einsum("n,na,na->", mass, v, v))
     stiffening = np.zeros(mesh.n_cells)
 
     times = test.output_times(n_out)
-    out = {k: np.zeros(n_out) for k in ("time_s", "d", "force", "reaction", "bottom",
+    out = {k: np.zeros(len(times)) for k in ("time_s", "d", "force", "reaction", "bottom",
                                           "external_J", "internal_J", "strain_J",
-                                          "hourglass_J", "kinetic_J", "friction_J", "radius")}
+                                          "hourglass_J", "kinetic_J", "friction_J", "damping_J",
+                                          "radius")}
     t = 0.0
     dt_prev = 0.0
     steps = 0
     start = time.perf_counter()
     for k, t_stop in enumerate(times):
         status, elem, t_eval, t, dt_prev, n = _advance_axisym(
-            t_stop, t, dt, dt_prev, kind, T_ramp, D, t_table, d_table, H,
+            t_stop, t, dt, dt_prev, kind, T_ramp, D, t_table, d_table, H, hold_damping,
             u, v, f_int, f_c, mass, X, fix_tangent, state, glued, candidate, anchor,
             _MODE[test.platen], float(test.friction),
             mesh.cells, ops.bbar, ops.hbar, ops.volume, ops.gamma, k_hg, mat, mu, alpha, K,
@@ -548,7 +559,7 @@ def simulate(
     wall = time.perf_counter() - start
 
     energy = {key: out[key] for key in ("external_J", "internal_J", "strain_J", "hourglass_J",
-                                        "kinetic_J", "friction_J")}
+                                        "kinetic_J", "friction_J", "damping_J")}
     return SimulationResult(
         time_s=out["time_s"], displacement_mm=1e3 * out["d"], force_N=out["force"],
         reaction_N=out["reaction"], bottom_reaction_N=out["bottom"], energy=energy,
@@ -579,4 +590,5 @@ def _record(out, k, t_eval, d, u, v, f_int, f_c, state, w, mass, energy_acc, X, 
     out["internal_J"][k] = energy_acc[0]
     out["external_J"][k] = energy_acc[1]
     out["friction_J"][k] = energy_acc[2]
+    out["damping_J"][k] = energy_acc[3]
     out["radius"][k] = (X[top, 0] + u[top, 0]).max() if top.any() else 0.0
