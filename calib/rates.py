@@ -51,7 +51,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from scipy import stats
+from scipy import special, stats
 
 __all__ = [
     "RATES_MM_PER_S",
@@ -160,8 +160,8 @@ def _t_test(slope: float, se: float, dof: int, confidence: float):
         return (math.copysign(math.inf, slope) if slope else math.nan,
                 0.0 if slope else 1.0, slope, slope)
     t = slope / se
-    p = float(2.0 * stats.t.sf(abs(t), dof))
-    half = float(stats.t.ppf(0.5 + 0.5 * confidence, dof)) * se
+    p = float(2.0 * special.stdtr(dof, -abs(t)))  # two-sided, Student's t with dof
+    half = float(special.stdtrit(dof, 0.5 + 0.5 * confidence)) * se
     return t, p, slope - half, slope + half
 
 
@@ -586,8 +586,9 @@ def flag_rates(n_campaigns: int, seed: int, *, significance: float = 0.05,
 def plot_rates(analysis: RateAnalysis, moduli, *, value: str | None = None):
     """Modulus against platen speed per layer, like the thesis's Fig. 11.
 
-    One colour per layer: per-cycle markers (one marker shape per sample), the fitted
-    per-layer trend (mean over samples) and its confidence band; log rate axis.
+    One colour per layer: per-cycle markers (one marker shape per sample, nudged sideways
+    so they do not hide each other), the fitted per-layer trend (mean over samples) and the
+    confidence band of that mean line; log rate axis.
 
     Parameters
     ----------
@@ -619,7 +620,8 @@ def plot_rates(analysis: RateAnalysis, moduli, *, value: str | None = None):
         rows = frame[(frame["layer"].astype(str) == trend.layer)]
         for j, (_, g) in enumerate(rows.groupby("sample", sort=True)):
             E = np.asarray(g[value], dtype=float)
-            ax.plot(np.asarray(g["rate_mm_per_s"], dtype=float), E / 1e3,
+            nudge = 1.0 + 0.025 * (j - 1)  # samples side by side on the log axis
+            ax.plot(np.asarray(g["rate_mm_per_s"], dtype=float) * nudge, E / 1e3,
                     linestyle="none", marker=markers[j % len(markers)], color=colour,
                     markerfacecolor="none", markersize=6, alpha=0.85)
         if trend.fitted_Pa and math.isfinite(trend.slope_per_decade_Pa):
