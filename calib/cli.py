@@ -342,8 +342,192 @@ def _run_generate(args) -> int:
     return EXIT_OK
 
 
+# ---------------------------------------------------------------------------- modulus
+def _add_modulus(sub) -> None:
+    p = sub.add_parser(
+        "modulus",
+        help="Young's modulus per cycle and its rate dependence per layer",
+        description="Young's modulus of every loading cycle from the initial linear region of "
+        "its nominal stress-strain curve (the region is chosen from the data and reported), "
+        "as the APPARENT modulus of the bonded squat sample and as the MATERIAL modulus "
+        "E_apparent / c, c from bonded forward simulations of the sample's own size; then, "
+        "per layer, the material modulus against log10(rate): slope per decade with its "
+        "confidence interval and p-value (sample as a block, Holm family-wise control over "
+        "the layers and a pooled campaign test). Exit status 2 if DATA is missing or holds no "
+        "readable cycle, 1 if no modulus can be estimated. Method: calib/modulus.py, "
+        "calib/rates.py.",
+    )
+    p.add_argument("data", metavar="DATA", help="folder of rig logs")
+    p.add_argument("--json", action="store_true",
+                   help='print one JSON object {"cycles": [...], "layers": [...], ...}')
+    p.add_argument("--plot", metavar="FILE.png",
+                   help="write the modulus-vs-rate figure (thesis Fig. 11 style) as PNG")
+    p.add_argument("--nu", type=float, default=0.499,
+                   help="Poisson's ratio of the correction factor's simulations, default 0.499")
+    p.add_argument("--alpha", type=float, default=5.0,
+                   help="Ogden exponent of the correction factor's simulations, default 5")
+    p.add_argument("--significance", type=float, default=0.05,
+                   help="family-wise error rate of the rate tests (Holm), default 0.05")
+    p.add_argument("--confidence", type=float, default=0.95,
+                   help="level of the slope confidence intervals, default 0.95")
+    p.set_defaults(handler=_run_modulus)
+
+
+_MODULUS_CONVENTIONS = {
+    "E_apparent_Pa": "slope of nominal stress vs nominal strain in linear_region_strain: the "
+                     "APPARENT modulus of the bonded (sandpaper) squat sample, stiffer than "
+                     "the material by correction_factor",
+    "E_material_Pa": "E_apparent_Pa / correction_factor: the material's small-strain Young's "
+                     "modulus, E = 3 mu (incompressible limit; mu the Ogden small-strain shear "
+                     "modulus, Abaqus / Miller-Chinzei convention)",
+    "initial_mu_Pa": "E_material_Pa / 3, the optimiser's initial guess of mu",
+    "correction_factor": "apparent over material modulus of a bonded cylinder of the sample's "
+                         "size (shape factor S = R / 2H), from solver.simulate with nu and "
+                         "alpha_reference, fitted over the same strain window",
+    "slope_per_decade_Pa": "change of E_material_Pa per tenfold increase of the platen speed; "
+                           "OLS with one intercept per sample, t-based CI, two-sided p",
+    "rate_dependent": "Holm-adjusted p-value <= significance over the layer tests and the "
+                      "pooled test",
+}
+
+
+def _run_modulus(args) -> int:
+    import os
+
+    from .loaders import load_campaign
+    from .modulus import ModulusError, cycle_modulus
+    from .rates import analyse_rates, plot_rates, save_figure
+
+    if not os.path.exists(args.data):
+        raise UsageError(f"{args.data}: no such folder")
+    if not os.path.isdir(args.data):
+        raise UsageError(f"{args.data}: not a folder")
+    if not (math.isfinite(args.nu) and -1.0 < args.nu < 0.5):
+        raise UsageError(f"--nu {args.nu}: Poisson's ratio must lie in (-1, 0.5)")
+    if not (math.isfinite(args.alpha) and args.alpha != 0.0):
+        raise UsageError(f"--alpha {args.alpha}: the Ogden exponent must be non-zero")
+    for name in ("significance", "confidence"):
+        if not 0.0 < getattr(args, name) < 1.0:
+            raise UsageError(f"--{name} {getattr(args, name)}: must lie in (0, 1)")
+    if args.plot and not args.plot.lower().endswith(".png"):
+        raise UsageError(f"--plot {args.plot}: the figure is written as PNG; name it *.png")
+    try:
+        campaign = load_campaign(args.data)
+    except OSError as exc:
+        raise UsageError(f"{args.data}: {exc.strerror or exc}") from exc
+    for r in campaign.rejected:
+        log(f"rejected {r.file}: {r.reason}")
+    if not campaign.cycles:
+        what = (f"{len(campaign.rejected)} entries rejected" if campaign.rejected
+                else "no files found")
+        raise UsageError(f"{args.data}: no readable cycle ({what})")
+
+    start = time.perf_counter()
+    results = []
+    for k, cycle in enumerate(campaign.cycles, start=1):
+        try:
+            result = cycle_modulus(cycle, nu=args.nu, alpha=args.alpha)
+        except ModulusError as exc:  # bad estimator settings only; curves fail softly
+            raise UsageError(str(exc)) from exc
+        results.append(result)
+        if result.ok:
+            log(f"[{k}/{len(campaign.cycles)}] {result.file}: E_apparent "
+                f"{result.E_apparent_Pa:.0f} Pa, E_material {result.E_material_Pa:.0f} Pa "
+                f"(c = {result.correction_factor:.3f}) over strain "
+                f"{result.linear_region_strain[0]:.4f}-{result.linear_region_strain[1]:.4f}")
+        else:
+            log(f"[{k}/{len(campaign.cycles)}] {result.file}: no modulus: {result.reason}")
+    log(f"moduli of {len(results)} cycles in {time.perf_counter() - start:.1f} s")
+    good = [r for r in results if r.ok]
+    if not good:
+        raise WorkFailed(f"no cycle's modulus could be estimated; first reason: "
+                         f"{results[0].file}: {results[0].reason}")
+    analysis = analyse_rates(good, significance=args.significance, confidence=args.confidence)
+    if args.plot:
+        try:
+            save_figure(plot_rates(analysis, good), args.plot)
+        except OSError as exc:
+            raise WorkFailed(f"cannot write --plot {args.plot}: {exc.strerror or exc}") from exc
+        log(f"wrote {args.plot}")
+    report = {
+        "cycles": [r.to_dict() for r in results],
+        "layers": [t.to_dict() for t in analysis.layers],
+        "pooled": analysis.pooled.to_dict(),
+        "significance": analysis.significance,
+        "confidence": analysis.confidence,
+        "rejected": [{"file": r.file, "reason": r.reason} for r in campaign.rejected],
+        "failed": [{"file": r.file, "reason": r.reason} for r in results if not r.ok],
+        "conventions": _MODULUS_CONVENTIONS,
+    }
+    if args.json:
+        emit_json(report)
+    else:
+        _print_modulus(results, analysis, campaign.rejected)
+    return EXIT_OK
+
+
+def _print_modulus(results, analysis, rejected) -> None:
+    """Print the per-cycle moduli, the per-layer rate trends and what was left out."""
+
+    def table(rows, left):
+        widths = [max(len(r[k]) for r in rows) for k in range(len(rows[0]))]
+        for r in rows:
+            print("  ".join(c.ljust(w) if k < left else c.rjust(w)
+                            for k, (c, w) in enumerate(zip(r, widths, strict=True))))
+
+    print("Young's modulus per cycle. E_apparent: slope of the linear region of the bonded, "
+          "squat sample\n(shape factor S = R/2H); E_material = E_apparent / c, c from bonded "
+          "forward simulations;\nmu0 = E_material / 3.\n")
+    rows = [("file", "layer", "sample", "rate mm/s", "strain lo-hi", "E_apparent Pa", "+-",
+             "c", "E_material Pa", "mu0 Pa")]
+    for r in results:
+        if r.ok:
+            lo, hi = r.linear_region_strain
+            rows.append((r.file, r.layer, r.sample, f"{r.rate_mm_per_s:g}",
+                         f"{lo:.4f}-{hi:.4f}", f"{r.E_apparent_Pa:.0f}",
+                         f"{r.E_apparent_stderr_Pa:.0f}", f"{r.correction_factor:.3f}",
+                         f"{r.E_material_Pa:.0f}", f"{r.initial_mu_Pa:.0f}"))
+        else:
+            rows.append((r.file, r.layer, r.sample, f"{r.rate_mm_per_s:g}", "-", "-", "-",
+                         "-", "-", "-"))
+    table(rows, 3)
+    conf = int(round(100 * analysis.confidence))
+    print(f"\nRate dependence of E_material per layer (sample as block; Holm over "
+          f"{len(analysis.layers)} layers + pooled, FWER {analysis.significance:g}):\n")
+    rows = [("layer", "cycles", "Pa/decade", f"{conf} % CI", "% /decade", "p", "p Holm",
+             "rate dependent")]
+    for t in analysis.layers:
+        lo, hi = t.slope_ci_Pa
+        rows.append((t.layer, str(t.n_cycles), f"{t.slope_per_decade_Pa:+.0f}",
+                     f"[{lo:+.0f}, {hi:+.0f}]", f"{100 * t.relative_slope_per_decade:+.1f}",
+                     f"{t.p_value:.3g}", f"{t.p_holm:.3g}",
+                     "yes" if t.rate_dependent else "no"))
+    table(rows, 1)
+    p = analysis.pooled
+    lo, hi = p.relative_change_ci
+    print(f"\npooled (ln E ~ sample + log10 rate): {100 * p.relative_change_per_decade:+.1f} % "
+          f"per decade [{100 * lo:+.1f}, {100 * hi:+.1f}], p = {p.p_value:.3g}, Holm "
+          f"{p.p_holm:.3g}: {'rate dependent' if p.rate_dependent else 'no significant trend'}")
+    notes = [f"{t.layer}: {t.note}" for t in analysis.layers if t.note]
+    if p.note:
+        notes.append(f"pooled: {p.note}")
+    failed = [r for r in results if not r.ok]
+    if failed:
+        print(f"\nNo modulus ({len(failed)}):")
+        for r in failed:
+            print(f"  {r.file}: {r.reason}")
+    if rejected:
+        print(f"\nRejected by the loader ({len(rejected)}):")
+        for r in rejected:
+            print(f"  {r.file}: {r.reason}")
+    if notes:
+        print("\nNotes:")
+        for n in notes:
+            print(f"  {n}")
+
+
 # ---------------------------------------------------------------------------- parser
-_SUBCOMMANDS = [_add_simulate, _add_export, _add_inspect, _add_generate]
+_SUBCOMMANDS = [_add_simulate, _add_export, _add_inspect, _add_generate, _add_modulus]
 
 
 def build_parser() -> argparse.ArgumentParser:
