@@ -526,8 +526,133 @@ def _print_modulus(results, analysis, rejected) -> None:
             print(f"  {n}")
 
 
+# ---------------------------------------------------------------------------- shared
+def _load_campaign_arg(path: str):
+    """Load the campaign folder named on the command line, or raise UsageError (exit 2)."""
+    import os
+
+    from .loaders import load_campaign
+
+    if not os.path.exists(path):
+        raise UsageError(f"{path}: no such folder")
+    if not os.path.isdir(path):
+        raise UsageError(f"{path}: not a folder")
+    try:
+        campaign = load_campaign(path)
+    except OSError as exc:
+        raise UsageError(f"{path}: {exc.strerror or exc}") from exc
+    for r in campaign.rejected:
+        log(f"rejected {r.file}: {r.reason}")
+    if not campaign.cycles:
+        what = (f"{len(campaign.rejected)} entries rejected" if campaign.rejected
+                else "no files found")
+        raise UsageError(f"{path}: no readable cycle ({what})")
+    return campaign
+
+
+def _csv_list(text: str | None, name: str, convert=str) -> list | None:
+    if text is None:
+        return None
+    try:
+        items = [convert(x.strip()) for x in text.split(",") if x.strip()]
+    except ValueError as exc:
+        raise UsageError(f"--{name} {text!r}: {exc}") from exc
+    if not items:
+        raise UsageError(f"--{name} {text!r}: empty list")
+    return items
+
+
+# ---------------------------------------------------------------------------- fit
+def _add_fit_options(p) -> None:
+    p.add_argument("--layers", metavar="A,B", help="comma-separated layers to fit (default all)")
+    p.add_argument("--rates", metavar="R1,R2",
+                   help="only cycles at these platen speeds, mm/s (default all)")
+    p.add_argument("--model", choices=("ogden",), default="ogden",
+                   help="constitutive model: one-term Ogden (default)")
+    p.add_argument("--nu", type=float, default=0.499, help="Poisson's ratio assumed, default 0.499")
+    p.add_argument("--residual", choices=("absolute", "relative"), default="absolute",
+                   help="residuals in newtons (default) or relative to the measured force")
+    p.add_argument("--workers", type=int, default=None,
+                   help="local processes (default: one per core; 1 = in this process)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="fit on a Dask distributed scheduler, e.g. tcp://host:8786")
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+
+def _add_fit(sub) -> None:
+    p = sub.add_parser(
+        "fit",
+        help="FE-coupled Ogden fit per layer",
+        description="Fit Ogden mu and alpha per layer by running the explicit FE simulation of "
+        "the bonded compression of every cycle (its own geometry) and comparing at strain "
+        "levels along the loading branch. Writes DIR/parameters.csv, per-layer fit and residual "
+        "plots and text reports.",
+    )
+    p.add_argument("data", help="folder of rig logs")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    _add_fit_options(p)
+    p.set_defaults(handler=_run_fit)
+
+
+def _fit_settings(args):
+    from .fit import FitSettings
+
+    if not (math.isfinite(args.nu) and -1.0 < args.nu < 0.5):
+        raise UsageError(f"--nu {args.nu}: Poisson's ratio must lie in (-1, 0.5)")
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"--workers {args.workers}: must be at least 1")
+    return FitSettings(nu=args.nu, residual=args.residual)
+
+
+def _run_fit_step(args, campaign, out_dir):
+    """Fit the layers asked for and write the fit outputs; shared by fit and demo."""
+    from .fit import fit_campaign
+    from .report import summary_table, write_fit_report
+
+    settings = _fit_settings(args)
+    layers = _csv_list(getattr(args, "layers", None), "layers")
+    rates = _csv_list(getattr(args, "rates", None), "rates", float)
+    if layers:
+        missing = sorted(set(layers) - set(campaign.layers()))
+        if missing:
+            raise UsageError(f"--layers: no cycles of layer(s) {missing} in the data "
+                             f"(layers present: {campaign.layers()})")
+    result = fit_campaign(campaign, settings, layers=layers, rates=rates,
+                          max_workers=args.workers, scheduler=args.scheduler,
+                          progress=not args.json)
+    for layer, reason in sorted(result.failed.items()):
+        log(f"layer {layer} not fitted: {reason}")
+    for layer, fit in sorted(result.fits.items()):
+        for w in fit.warnings:
+            log(f"layer {layer}: {w}")
+    if not result.fits:
+        raise WorkFailed("no layer could be fitted: "
+                         + "; ".join(f"{k}: {v}" for k, v in sorted(result.failed.items())))
+    written = write_fit_report(result, campaign, out_dir)
+    if not args.json:
+        print(summary_table(result))
+    log(f"fitted {len(result.fits)} layer(s) in {result.wall_s:.1f} s; wrote "
+        f"{written['parameters']}")
+    return result, written
+
+
+def _run_fit(args) -> int:
+    campaign = _load_campaign_arg(args.data)
+    result, written = _run_fit_step(args, campaign, args.out)
+    if args.json:
+        emit_json({
+            "parameters": result.table().to_dict(orient="records"),
+            "failed": result.failed,
+            "outputs": written,
+            "wall_s": result.wall_s,
+            "forward_solves": {k: f.n_solves for k, f in result.fits.items()},
+        })
+    return EXIT_OK
+
+
 # ---------------------------------------------------------------------------- parser
-_SUBCOMMANDS = [_add_simulate, _add_export, _add_inspect, _add_generate, _add_modulus]
+_SUBCOMMANDS = [_add_simulate, _add_export, _add_inspect, _add_generate, _add_modulus,
+                _add_fit]
 
 
 def build_parser() -> argparse.ArgumentParser:
