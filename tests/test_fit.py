@@ -1,0 +1,173 @@
+"""The FE-coupled calibration: round trips, noise model, bad campaigns, executors, CLI."""
+
+import json
+
+import numpy as np
+import pytest
+
+from calib.fit import (
+    FitSettings,
+    ForwardModel,
+    fit_campaign,
+    fit_layer,
+    layer_data,
+    level_forces,
+)
+from calib.loaders import Campaign, Cycle
+from solver import CompressionTest, Ogden, axisymmetric_cylinder, simulate
+
+RATES = (0.17, 0.83, 6.0)
+
+
+def _cycle(layer, sample, test, rate, mu, alpha, diameter=38.0, height=24.0, strain=0.3,
+           noise_N=0.0, rng=None, mesh_scale=1.0):
+    """A loading branch straight from the solver (dense output), optionally with white noise."""
+    mesh = axisymmetric_cylinder(diameter, height, round(14 * mesh_scale), round(18 * mesh_scale))
+    r = simulate(Ogden(mu_Pa=mu, alpha=alpha, nu=0.499),
+                 CompressionTest(diameter_mm=diameter, height_mm=height, strain=strain,
+                                 rate_mm_per_s=rate), mesh, n_out=301)
+    force = r.force_N.copy()
+    if noise_N:
+        force = force + rng.normal(0.0, noise_N, force.shape)
+    travel = r.displacement_mm
+    return Cycle(file=f"{layer}/{sample}_t{test}_{rate}mms.csv", layer=layer, sample=sample,
+                 test=test, rate_mm_per_s=rate, diameter_mm=diameter, height_mm=height,
+                 time_s=travel / rate, displacement_mm=travel, force_N=force,
+                 sign={"displacement": 1, "force": 1}, tare_N=0.0, contact_mm=0.0)
+
+
+def _layer(layer, mu, alpha, geometries, **kw):
+    cycles = []
+    for s, (d, h) in enumerate(geometries, start=1):
+        for t, rate in enumerate(RATES, start=1):
+            cycles.append(_cycle(layer, f"{layer}{s}", t, rate, mu, alpha, d, h, **kw))
+    return cycles
+
+
+def test_level_forces_recover_a_smooth_curve():
+    rng = np.random.default_rng(4)
+    strain = np.sort(rng.uniform(0, 0.3, 3000))
+    force = 2.0 * strain + 10.0 * strain**3
+    value, stderr = level_forces(strain, force + rng.normal(0, 0.003, strain.shape),
+                                 np.array([0.05, 0.2, 0.3, 0.35]))
+    exact = 2.0 * np.array([0.05, 0.2, 0.3]) + 10.0 * np.array([0.05, 0.2, 0.3]) ** 3
+    # 0.003 N noise over ~100 points: se ~0.3 mN; curvature bias 10*3*x*w^2/3 < 0.3 mN
+    np.testing.assert_allclose(value[:3], exact, atol=1.5e-3)
+    assert np.all(stderr[:3] < 1e-3)
+    assert np.isnan(value[3])  # never reached
+
+
+@pytest.mark.slow
+def test_noise_free_round_trip_recovers_the_truth():
+    """Curves from the fitting mesh itself, no noise, three sample geometries: the fit returns
+    the truth to the solver's accuracy (the alpha surrogate and discrete rollover events,
+    ~1e-3 of the force)."""
+    mu, alpha = 2165.0, 6.0
+    cycles = _layer("C", mu, alpha, [(38.0, 24.0), (37.6, 24.3), (38.3, 23.8)])
+    fit = fit_layer(cycles, FitSettings(profile=False))
+    assert fit.mu_Pa == pytest.approx(mu, rel=2e-3)
+    assert fit.alpha == pytest.approx(alpha, rel=2e-3)
+    assert fit.rms_N < 5e-3
+    assert fit.surrogate_error < 5e-3
+    # the closed form misreads the bonded platens: biased by tens of percent
+    assert fit.homogeneous["mu_Pa"] / mu - 1 > 0.2
+    assert fit.homogeneous["alpha"] / alpha - 1 > 0.15
+
+
+@pytest.mark.slow
+def test_noisy_round_trip_truth_inside_two_standard_errors():
+    """Three samples of different stiffness (the layer's truth is their mean), 3 mN noise."""
+    rng = np.random.default_rng(11)
+    params = [(2950.0, 5.8), (3050.0, 5.6), (3000.0, 5.75)]
+    geometries = [(38.0, 24.0), (37.8, 24.2), (38.2, 23.9)]
+    cycles = []
+    for s, ((mu, alpha), (d, h)) in enumerate(zip(params, geometries), start=1):
+        for t, rate in enumerate(RATES, start=1):
+            cycles.append(_cycle("E", f"E{s}", t, rate, mu, alpha, d, h, noise_N=0.003,
+                                 rng=rng))
+    fit = fit_layer(cycles)
+    mu_t = np.mean([p[0] for p in params])
+    alpha_t = np.mean([p[1] for p in params])
+    assert fit.mu_Pa == pytest.approx(mu_t, rel=0.02)
+    assert fit.alpha == pytest.approx(alpha_t, rel=0.03)
+    assert abs(fit.mu_Pa - mu_t) < 2 * fit.mu_stderr_Pa
+    assert abs(fit.alpha - alpha_t) < 2 * fit.alpha_stderr
+    lo, hi = fit.ci["alpha"]
+    assert lo < alpha_t < hi
+    # per-sample fits of the noise model find each sample
+    per = fit.initial["per_sample"]
+    for s, (mu, alpha) in enumerate(params, start=1):
+        assert per[f"E{s}"]["mu_Pa"] == pytest.approx(mu, rel=0.01)
+        assert per[f"E{s}"]["alpha"] == pytest.approx(alpha, rel=0.02)
+
+
+def test_scaled_forces_scale_mu_only():
+    """A campaign with all forces doubled fits to twice the mu and the same alpha, exactly:
+    the variable projection and the noise model are scale-invariant."""
+    cycles = _layer("A", 1875.0, 4.9, [(38.0, 24.0), (38.0, 24.0)])
+    doubled = [Cycle(**{**{f: getattr(c, f) for f in c.__dataclass_fields__},
+                        "force_N": 2 * c.force_N}) for c in cycles]
+    forward = ForwardModel()
+    settings = FitSettings(profile=False)
+    a = fit_layer(cycles, settings, forward)
+    b = fit_layer(doubled, settings, forward)
+    assert b.mu_Pa == pytest.approx(2 * a.mu_Pa, rel=1e-6)
+    assert b.alpha == pytest.approx(a.alpha, rel=1e-6)
+    assert b.n_solves <= 3  # the second fit reuses the cached solves
+
+
+def test_bad_layers_give_clear_messages_and_others_still_fit():
+    good = _layer("A", 1875.0, 4.9, [(38.0, 24.0), (38.0, 24.0)])
+    lonely = [_cycle("B", "B1", 1, 0.83, 1875.0, 6.5)]
+    short = _cycle("C", "C1", 1, 0.83, 2165.0, 6.0, strain=0.2)
+    nan_cycle = _cycle("C", "C2", 1, 0.83, 2165.0, 6.0)
+    broken = Cycle(**{**{f: getattr(nan_cycle, f) for f in nan_cycle.__dataclass_fields__},
+                      "force_N": np.full_like(nan_cycle.force_N, np.nan)})
+    third = _cycle("C", "C3", 1, 0.83, 2165.0, 6.0)
+    campaign = Campaign(root="mem", cycles=tuple(good + lonely + [short, broken, third]))
+    result = fit_campaign(campaign, FitSettings(profile=False), max_workers=1, progress=False)
+    assert set(result.fits) == {"A", "C"}
+    assert "B" in result.failed and "at least two" in result.failed["B"]
+    warnings = " ".join(result.fits["C"].warnings)
+    assert "C1" in warnings and "never reaches 30%" in warnings
+    assert "C2" in warnings and "left out" in warnings
+    assert result.fits["C"].n_cycles == 2
+    with pytest.raises(ValueError, match="several layers"):
+        layer_data(good + lonely)
+
+
+@pytest.mark.slow
+def test_dask_executor_fits_layers_on_a_local_cluster():
+    distributed = pytest.importorskip("distributed")
+    cycles = (_layer("A", 1875.0, 4.9, [(38.0, 24.0), (38.0, 24.0)])
+              + _layer("F", 3100.0, 5.5, [(38.0, 24.0), (38.0, 24.0)]))
+    campaign = Campaign(root="mem", cycles=tuple(cycles))
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        result = fit_campaign(campaign, FitSettings(profile=False), scheduler=client,
+                              progress=False)
+    assert set(result.fits) == {"A", "F"}
+    assert result.fits["F"].mu_Pa == pytest.approx(3100.0, rel=3e-3)
+
+
+def test_fit_cli_writes_parameters_and_plots(tmp_path, capsys):
+    from calib.cli import main
+    from calib.export import read_parameters
+
+    from .rigfiles import write_primary
+
+    rng = np.random.default_rng(2)
+    data = tmp_path / "data"
+    for c in _layer("A", 1875.0, 4.9, [(38.0, 24.0), (38.0, 24.0)], noise_N=0.002, rng=rng):
+        write_primary(data / c.file, c)
+    out = tmp_path / "out"
+    assert main(["fit", str(data), "--out", str(out), "--json", "--workers", "1"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["parameters"][0]["layer"] == "A"
+    table = read_parameters(out / "parameters.csv")
+    assert table.loc[0, "mu_Pa"] == pytest.approx(1875.0, rel=0.02)
+    assert (out / "fit_A.png").stat().st_size > 1000
+    assert (out / "residuals_A.png").exists() and (out / "report_A.txt").exists()
+    assert main(["fit", str(tmp_path / "missing"), "--out", str(out)]) == 2
+    assert main(["fit", str(data), "--out", str(out), "--layers", "Z"]) == 2
