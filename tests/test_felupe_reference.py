@@ -201,3 +201,20 @@ def test_closed_form_reference_is_the_project_material():
     # the frictionless agreement ties FElupe's ogden + NearlyIncompressible to solver.Ogden.
     m = Ogden(mu_Pa=MU, alpha=ALPHA, nu=0.499)
     assert m.bulk_modulus_Pa == pytest.approx(2 * MU * 1.499 / (3 * 0.002))
+
+
+def test_mesh_for_accuracy_picks_the_coarsest_sufficient_level():
+    level = fr.mesh_for_accuracy(0.01)
+    assert level["rel_error"] <= 0.01
+    coarser = [lv for lv in fr.LADDER if lv["n_radial"] < level["n_radial"]]
+    assert all(lv["rel_error"] > 0.01 for lv in coarser)
+    assert fr.mesh_for_accuracy(0.005)["n_radial"] >= level["n_radial"]
+    with pytest.raises(ValueError, match="accuracy"):
+        fr.mesh_for_accuracy(1e-9)
+
+
+def test_time_at_accuracy_reports_a_timed_curve():
+    out = fr.time_at_accuracy(0.02)
+    assert out["wall_s"] > 0 and out["n_dofs"] > 0
+    assert out["rel_error"] <= 0.02
+    assert 3.5 < out["force_N_at_max"] < 4.5  # the bonded 30 % force is ~4.08 N
