@@ -265,7 +265,7 @@ def _axial_planes(height_mm, n_axial, grading, layers):
         return graded_coordinates(height_mm, n_axial, grading, fine="both")
     bounds = np.r_[0.0, np.asarray(layers, dtype=float), height_mm]
     planes = [np.zeros(1)]
-    for a, b in zip(bounds[:-1], bounds[1:]):
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
         n = max(2, round(n_axial * (b - a) / height_mm))
         planes.append(a + graded_coordinates(b - a, n, grading, fine="both")[1:])
     out = np.concatenate(planes)
@@ -293,7 +293,7 @@ def _material(mu_Pa, alpha, nu, where: str) -> _Material:
     if any(a == 0.0 for a in al):
         raise ValueError(f"{where}: alpha={al} must be non-zero")
     mu0 = sum(mu)
-    if any(m * a <= 0 for m, a in zip(mu, al)) or mu0 <= 0:
+    if any(m * a <= 0 for m, a in zip(mu, al, strict=True)) or mu0 <= 0:
         raise ValueError(f"{where}: every mu_i * alpha_i must be positive and sum(mu) > 0 "
                          f"(got mu_Pa={mu}, alpha={al})")
     nu = float(nu)
@@ -468,7 +468,7 @@ def compression_curve(
                                  f"makes {n_layers} layers")
             per_layer.append(seq)
         materials = [_material(m, a, v, f"layer {k}")
-                     for k, (m, a, v) in enumerate(zip(*per_layer))]
+                     for k, (m, a, v) in enumerate(zip(*per_layer, strict=True))]
     else:
         interfaces = np.zeros(0)
         materials = [_material(mu_Pa, alpha, nu, "material")]
@@ -479,15 +479,14 @@ def compression_curve(
         mesh = axisymmetric_mesh(diameter_mm, height_mm, n_radial, n_axial, grading, order,
                                  layers=interfaces)
         axial, dim = 0, 2
-        radius_of = (lambda p: p[:, 1])  # noqa: E731
+        r_body = mesh.points[:, 1].copy()
     else:
         mesh = cylinder_hex_mesh(diameter_mm, height_mm, n_radial, n_axial, grading, order,
                                  layers=interfaces if interfaces.size else None)
         axial, dim = 2, 3
-        radius_of = (lambda p: np.linalg.norm(p[:, :2], axis=1))  # noqa: E731
+        r_body = np.linalg.norm(mesh.points[:, :2], axis=1)
     n_body = mesh.npoints
     z_body = mesh.points[:, axial].copy()
-    r_body = radius_of(mesh.points)
     cell_z = mesh.points[mesh.cells, axial].mean(axis=1)
     cell_material = np.searchsorted(interfaces, cell_z)                  # layer index per cell
 
@@ -618,7 +617,7 @@ def _advance(fem, field, items, bcs, dof0, dof1, axial, start, target, contact,
                 res = fem.newtonraphson(field, items=items, dof1=dof1, dof0=dof0, ext0=ext0,
                                         verbose=0)
         except ValueError as exc:          # NewtonConvergenceError is a ValueError
-            for f, v in zip(field.fields, saved):
+            for f, v in zip(field.fields, saved, strict=True):
                 f.values[:] = v
             bisections += 1
             if bisections > max_bisections:
