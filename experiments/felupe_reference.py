@@ -779,7 +779,7 @@ def convergence_study(nu: float = 0.499, levels=(8, 16, 32, 64), grading: float 
             row["change"] = max(abs(row[k] / rows[-1][k] - 1.0)
                                 for k in row if k.startswith("F"))
         else:
-            row["change"] = float("nan")
+            row["change"] = None
         rows.append(row)
         if log is not None:
             log(json.dumps(row))
@@ -842,6 +842,17 @@ def time_at_accuracy(accuracy: float, mu_Pa: float = 1875.0, alpha: float = 4.9,
 
 
 # ============================================================================== command line
+def _json_safe(value):
+    """NaN -> None (strict JSON), arrays -> lists, recursively."""
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, (float, np.floating)):
+        return None if not math.isfinite(value) else float(value)
+    return value
+
+
 def main(argv=None) -> int:
     """Run the convergence study (``--study``) or the frictionless check; JSON on stdout."""
     parser = argparse.ArgumentParser(prog="python -m experiments.felupe_reference",
@@ -862,13 +873,12 @@ def main(argv=None) -> int:
         rows, extrap = convergence_study(nu=args.nu, levels=tuple(args.levels),
                                          grading=args.grading, order=args.order, log=log,
                                          rollover_contact=not args.no_contact)
-        print(json.dumps({"nu": args.nu, "grading": args.grading, "order": args.order,
-                          "contact": not args.no_contact, "rows": rows,
-                          "richardson": extrap}, indent=1))
+        print(json.dumps(_json_safe({"nu": args.nu, "grading": args.grading,
+                                     "order": args.order, "contact": not args.no_contact,
+                                     "rows": rows, "richardson": extrap}), indent=1))
     else:
         check = frictionless_check(nu=args.nu)
-        print(json.dumps({k: (v.tolist() if isinstance(v, np.ndarray) else v)
-                          for k, v in check.items()}, indent=1))
+        print(json.dumps(_json_safe(check), indent=1))
     return 0
 
 
