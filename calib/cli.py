@@ -650,9 +650,54 @@ def _run_fit(args) -> int:
     return EXIT_OK
 
 
+# ---------------------------------------------------------------------------- demo
+def _add_demo(sub) -> None:
+    p = sub.add_parser(
+        "demo",
+        help="the main job on the embedded campaign",
+        description="Load the embedded campaign (experiments/campaign), estimate moduli and the "
+        "strain-rate dependence, fit Ogden mu and alpha per layer with the FE simulation, "
+        "export the table in every format, run the discrepancy workflow, and write everything "
+        "into a report folder; prints the per-layer table.",
+    )
+    p.add_argument("--out", default="demo_report", metavar="DIR",
+                   help="report folder (default ./demo_report)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="local processes (default: one per core)")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="a Dask scheduler to run on")
+    p.add_argument("--no-discover", action="store_true",
+                   help="skip the discrepancy workflow")
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    p.set_defaults(handler=_run_demo)
+
+
+def _run_demo(args) -> int:
+    from .demo import run_demo
+
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"--workers {args.workers}: must be at least 1")
+    try:
+        summary = run_demo(args.out, workers=args.workers, scheduler=args.scheduler,
+                           progress=not args.json, log=log, discover=not args.no_discover)
+    except FileNotFoundError as exc:
+        raise WorkFailed(str(exc)) from exc
+    table = summary.pop("table_text")
+    if args.json:
+        emit_json(summary)
+    else:
+        print(table)
+        disc = summary.get("discovery")
+        if disc:
+            print(f"\nmissing effect: {disc['effect']} (RMS gap {1e3 * disc['rms_before_N']:.1f} "
+                  f"-> {1e3 * disc['rms_after_N']:.1f} mN)")
+        print(f"\nreport: {summary['out']}/summary.md")
+    log(f"demo finished in {summary['timings']['total_s']:.1f} s")
+    return EXIT_OK
+
+
 # ---------------------------------------------------------------------------- parser
-_SUBCOMMANDS = [_add_simulate, _add_export, _add_inspect, _add_generate, _add_modulus,
-                _add_fit]
+_SUBCOMMANDS = [_add_demo, _add_inspect, _add_modulus, _add_simulate, _add_fit, _add_export,
+                _add_generate]
 
 
 def build_parser() -> argparse.ArgumentParser:
