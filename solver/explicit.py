@@ -60,7 +60,15 @@ from .kernels import (
     axisym_energy,
     axisym_forces,
     axisym_stiffening,
+    axisym_stress,
     axisymmetric_operators,
+    hex_energy,
+    hex_forces,
+    hex_forces_serial,
+    hex_operators,
+    hex_stiffening,
+    hex_stress,
+    node_slots,
 )
 from .loading import CompressionTest, travel
 from .materials import Ogden
@@ -148,6 +156,9 @@ class SimulationResult:
         Mass added by selective scaling over the total mass.
     wall_s : float
         Wall-clock time of the time loop (s).
+    cell_stress_Pa : ndarray, shape (n_cells, 6)
+        Cauchy stress of every element in the final state (Pa), components (xx, yy, zz, xy,
+        yz, xz); for the axisymmetric section x = r, y = hoop, z = axis.
     """
 
     time_s: np.ndarray
@@ -166,6 +177,7 @@ class SimulationResult:
     density_kg_m3: float
     added_mass_fraction: float
     wall_s: float
+    cell_stress_Pa: np.ndarray | None = None
 
     @property
     def deformed_points_m(self) -> np.ndarray:
@@ -183,6 +195,25 @@ class SimulationResult:
     def hourglass_ratio(self) -> float:
         """Hourglass over strain energy at the end of the run."""
         return float(self.energy["hourglass_J"][-1] / self.energy["strain_J"][-1])
+
+    def von_mises_Pa(self) -> np.ndarray:
+        """Von Mises equivalent of :attr:`cell_stress_Pa`, shape (n_cells,) (Pa)."""
+        s = self.cell_stress_Pa
+        normal = (s[:, 0] - s[:, 1]) ** 2 + (s[:, 1] - s[:, 2]) ** 2 + (s[:, 2] - s[:, 0]) ** 2
+        shear = s[:, 3] ** 2 + s[:, 4] ** 2 + s[:, 5] ** 2
+        return np.sqrt(0.5 * normal + 3.0 * shear)
+
+    def write_vtk(self, path) -> None:
+        """Write the deformed mesh with its fields as VTK (meshio; see :mod:`solver.output`)."""
+        from .output import write_vtk
+
+        write_vtk(self, path)
+
+    def write_png(self, path) -> None:
+        """Draw the deformed section and the force curve to a PNG (see :mod:`solver.output`)."""
+        from .output import write_png
+
+        write_png(self, path)
 
     def to_frame(self):
         """The curve as a pandas DataFrame (``time_s``, ``displacement_mm``, ``force_N``, ...)."""
@@ -333,6 +364,45 @@ def _advance_axisym(
             return OK, -1, t_eval, t, dt_prev, steps
 
 
+@njit
+def _advance_hex(
+    t_stop, t, dt, dt_prev, kind, T, D, t_table, d_table, H, hold_damping,
+    u, v, f_int, f_c, mass, X, fix_tangent, state, glued, candidate, anchor, mode, mu_f,
+    conn, bbar, vol, gamma, k_hg, mat, mu, alpha, K, g, decay, gain, s_prev, hist,
+    ptr, slot, fe, status_e, fe1, parallel, u_eval, energy,
+):
+    """Step the hexahedral model until the last force evaluation reaches ``t_stop``.
+
+    The same loop as :func:`_advance_axisym` with the hexahedron's force kernel:
+    :func:`solver.kernels.hex_forces` (threads; work arrays ``ptr``, ``slot``, ``fe``,
+    ``status_e``) if ``parallel`` else :func:`solver.kernels.hex_forces_serial` (work array
+    ``fe1``). Returns the same tuple.
+    """
+    steps = 0
+    t_eval = t
+    while True:
+        if parallel:
+            status, elem = hex_forces(u, conn, bbar, vol, gamma, k_hg, mat, mu, alpha, K, g,
+                                      decay, gain, s_prev, hist, True, ptr, slot, fe, status_e,
+                                      f_int)
+        else:
+            status, elem = hex_forces_serial(u, conn, bbar, vol, gamma, k_hg, mat, mu, alpha,
+                                             K, g, decay, gain, s_prev, hist, True, fe1, f_int)
+        if status != OK:
+            return status, elem, t, t, dt_prev, steps
+        u_eval[:] = u
+        t_eval = t
+        z_top = H - travel(t + dt, kind, T, D, t_table, d_table)
+        damp = hold_damping if t >= T else 0.0
+        _nodal_update(u, v, f_int, f_c, mass, X, fix_tangent, state, glued, candidate, anchor,
+                      mode, mu_f, z_top, dt, 0.5 * (dt_prev + dt), damp, energy)
+        dt_prev = dt
+        t = t + dt
+        steps += 1
+        if t_eval >= t_stop - 0.5 * dt:
+            return OK, -1, t_eval, t, dt_prev, steps
+
+
 # ====================================================================== set-up
 def _material_tables(materials: Sequence[Ogden], n_mat: int):
     n_terms = max(m.n_terms for m in materials)
@@ -360,6 +430,32 @@ def _prony_factors(tau, dt):
     return np.ascontiguousarray(np.exp(-x)), np.ascontiguousarray(-np.expm1(-x) / x)
 
 
+def _fits(mesh: Mesh, test: CompressionTest) -> bool:
+    """Whether the mesh is the test's sample (height, and diameter or equal-area diameter)."""
+    if not math.isclose(1e3 * mesh.height_m, test.height_mm, rel_tol=1e-6):
+        return False
+    radii = [mesh.radius_m] if mesh.cell_type == "quad" else [mesh.radius_m,
+                                                               mesh.outer_radius_m]
+    return any(math.isclose(2e3 * r, test.diameter_mm, rel_tol=1e-6) for r in radii)
+
+
+def _twist_pin(mesh: Mesh, sets: dict) -> tuple[int, int]:
+    """One (node, direction) that holds the rigid rotation about the axis in static solves.
+
+    A node of the bottom face on the x axis (y = 0, x > 0) keeps y; by symmetry of an
+    axisymmetric solution its y reaction is zero, so the pin changes nothing else.
+    """
+    x, y = mesh.points[:, 0], mesh.points[:, 1]
+    tol = 1e-9 * mesh.height_m
+    for along, across, direction in ((x, y, 1), (y, x, 0)):
+        on = sets["bottom"] & (np.abs(across) <= tol) & (along > tol)
+        if on.any():
+            return int(np.flatnonzero(on)[0]), direction
+    raise ValueError("frictionless or Coulomb platens on a hexahedral mesh need a bottom-face "
+                     "node on the x or y axis to hold the rigid rotation of the static set-up "
+                     "(use an even n_core / nx, ny)")
+
+
 def simulate(
     material: Ogden | Sequence[Ogden],
     test: CompressionTest | None = None,
@@ -371,6 +467,7 @@ def simulate(
     mass_scaling: bool = True,
     mass_scaling_quantile: float = 0.1,
     dt_safety: float = 0.8,
+    parallel: bool = True,
 ) -> SimulationResult:
     """Run one explicit compression test and return its force-travel curve.
 
@@ -381,8 +478,10 @@ def simulate(
     test : CompressionTest, optional
         Geometry, travel, rate and platen condition; the default bonded 30 % test.
     mesh : Mesh, optional
-        An axisymmetric mesh of the test's cylinder; default
-        :func:`solver.mesh.axisymmetric_cylinder` of the test's size.
+        A mesh of the test's cylinder: axisymmetric quads (default
+        :func:`solver.mesh.axisymmetric_cylinder` of the test's size) or hexahedra
+        (:func:`solver.mesh.hex_cylinder`, :func:`solver.mesh.hex_block`). Hexahedral meshes
+        match the test by height and by diameter or equal-area diameter.
     quasi_static_ratio : float
         Ramp time over the sample's lowest natural period, reached by mass scaling.
     n_out : int
@@ -398,6 +497,10 @@ def simulate(
         mass to reach it.
     dt_safety : float
         Time step over the stable bound.
+    parallel : bool
+        Hexahedra only: spread the element loop over numba's threads (race-free, see
+        :func:`solver.kernels.hex_forces`); ``False`` runs the serial kernel. The results
+        agree to rounding.
 
     Returns
     -------
@@ -408,15 +511,14 @@ def simulate(
     SolverInstability
         If an element inverts, a force becomes NaN or infinite, or the kinetic energy blows
         up; the message names the step, time, travel and element.
+    ValueError
+        If the mesh does not fit the test, the materials do not cover its layers, or an
+        argument is out of range.
     """
     test = CompressionTest() if test is None else test
     if mesh is None:
         mesh = axisymmetric_cylinder(test.diameter_mm, test.height_mm)
-    if mesh.cell_type != "quad":
-        raise NotImplementedError(f"simulate() runs axisymmetric quad meshes; got "
-                                  f"{mesh.cell_type!r}")
-    if not (math.isclose(2e3 * mesh.radius_m, test.diameter_mm, rel_tol=1e-6)
-            and math.isclose(1e3 * mesh.height_m, test.height_mm, rel_tol=1e-6)):
+    if not _fits(mesh, test):
         raise ValueError(
             f"mesh is {2e3 * mesh.radius_m:.4g} x {1e3 * mesh.height_m:.4g} mm but the test "
             f"sample is {test.diameter_mm:.4g} x {test.height_mm:.4g} mm")
@@ -429,7 +531,11 @@ def simulate(
     if not quasi_static_ratio > 0:
         raise ValueError(f"quasi_static_ratio={quasi_static_ratio} must be positive")
 
-    ops = axisymmetric_operators(mesh.points, mesh.cells)
+    hexa = mesh.cell_type == "hexahedron"
+    if hexa:
+        ops = hex_operators(mesh.points, mesh.cells)
+    else:
+        ops = axisymmetric_operators(mesh.points, mesh.cells)
     mu, mu_lt, alpha, K, g, tau = _material_tables(materials, n_mat)
     mat = mesh.cell_material
     mu_ref = materials[0].mu0_Pa
@@ -455,20 +561,36 @@ def simulate(
     np.add.at(plain_mass, mesh.cells, ops.node_volume)
     added_mass_fraction = float(node_mass_unit.sum() / plain_mass.sum() - 1.0)
 
+    # --- platen constraints: z on both faces; all directions if bonded. The axis of the
+    # axisymmetric model holds r. A hexahedral model with sliding faces holds the lateral
+    # motion of its axis nodes (exact by symmetry), and its static set-up also the twist.
     sets = mesh.node_sets()
     bonded = test.platen == "bonded"
+    faces = sets["top"] | sets["bottom"]
     constrained = np.zeros((n_nodes, dim), dtype=bool)
-    constrained[sets["axis"], 0] = True
-    constrained[sets["top"] | sets["bottom"], 1] = True
+    constrained[faces, -1] = True
     if bonded:
-        constrained[sets["top"] | sets["bottom"], 0] = True
+        constrained[faces, :] = True
+    if not hexa or not bonded:
+        fix_tangent = np.ascontiguousarray(sets["axis"])
+        if hexa and not fix_tangent.any():
+            raise ValueError("frictionless or Coulomb platens on a hexahedral mesh need nodes "
+                             "on the axis (x = y = 0) to hold the rigid lateral motion (use an "
+                             "even n_core / nx, ny)")
+    else:
+        fix_tangent = np.zeros(n_nodes, dtype=bool)
+    constrained[fix_tangent, :-1] = True
+    static = constrained.copy()
+    if hexa and not bonded:
+        static[_twist_pin(mesh, sets)] = True
     prescribed = np.zeros((n_nodes, dim))
-    prescribed[sets["top"], 1] = -1.0  # unit travel of the top platen
+    prescribed[sets["top"], -1] = -1.0  # unit travel of the top platen
     Ke_lt = element_stiffness(ops, shear_lt, bulk, k_hg_unit)
     K_lt = assemble(mesh.cells, Ke_lt, n_nodes, dim)
-    free = ~constrained.ravel()
-    omega2_1 = lowest_mode(K_lt, np.repeat(node_mass_unit, dim), free)
-    w = influence_field(K_lt, free, prescribed.ravel()).reshape(n_nodes, dim)
+    free = ~static.ravel()
+    w = influence_field(K_lt, free, prescribed.ravel())
+    omega2_1 = lowest_mode(K_lt, np.repeat(node_mass_unit, dim), free, load=w)
+    w = w.reshape(n_nodes, dim)
 
     T = test.ramp_time_s
     if mass_scaling:
@@ -497,12 +619,12 @@ def simulate(
     state = np.zeros(n_nodes, dtype=np.int8)
     state[sets["bottom"]] = BOTTOM
     state[sets["top"]] = TOP
-    glued = (sets["top"] | sets["bottom"]) if bonded else np.zeros(n_nodes, dtype=bool)
+    glued = faces if bonded else np.zeros(n_nodes, dtype=bool)
     candidate = mesh.boundary_nodes()
     anchor = np.zeros((n_nodes, dim))
-    fix_tangent = np.ascontiguousarray(sets["axis"])
-    s_prev = np.zeros((mesh.n_cells, 4))
-    hist = np.zeros((mesh.n_cells, 4, g.shape[1]))
+    n_stress = 6 if hexa else 4  # isochoric PK2 components with a Prony history
+    s_prev = np.zeros((mesh.n_cells, n_stress))
+    hist = np.zeros((mesh.n_cells, n_stress, g.shape[1]))
     decay, gain = _prony_factors(tau, dt)
     energy_acc = np.zeros(4)
     # during a hold the platen is still: damp the lowest mode critically (dynamic relaxation),
@@ -510,6 +632,38 @@ def simulate(
     hold_damping = 2.0 * math.sqrt(omega2_1 / rho_ratio)
     kinetic0 = 0.5 * float(np.einsum("n,na,na->", mass, v, v))
     stiffening = np.zeros(mesh.n_cells)
+    mode = _MODE[test.platen]
+    friction = float(test.friction)
+    if hexa:
+        ptr, slot = node_slots(mesh.cells, n_nodes)
+        fe = np.zeros((mesh.n_cells, 8, 3))
+        status_e = np.zeros(mesh.n_cells, dtype=np.int32)
+        fe1 = np.zeros((8, 3))
+        energy_fn = hex_energy
+        energy_args = (mesh.cells, ops.bbar, ops.volume, ops.gamma, k_hg, mat, mu_lt, alpha, K)
+    else:
+        energy_fn = axisym_energy
+        energy_args = (mesh.cells, ops.bbar, ops.hbar, ops.volume, ops.gamma, k_hg, mat, mu_lt,
+                       alpha, K)
+
+    def advance(t_stop, t, dt, dt_prev, decay, gain):
+        common = (t_stop, t, dt, dt_prev, kind, T_ramp, D, t_table, d_table, H, hold_damping,
+                  u, v, f_int, f_c, mass, X, fix_tangent, state, glued, candidate, anchor,
+                  mode, friction)
+        if hexa:
+            return _advance_hex(*common, mesh.cells, ops.bbar, ops.volume, ops.gamma, k_hg,
+                                mat, mu, alpha, K, g, decay, gain, s_prev, hist, ptr, slot, fe,
+                                status_e, fe1, bool(parallel), u_eval, energy_acc)
+        return _advance_axisym(*common, mesh.cells, ops.bbar, ops.hbar, ops.volume, ops.gamma,
+                               k_hg, mat, mu, alpha, K, g, decay, gain, s_prev, hist, u_eval,
+                               energy_acc)
+
+    def stiffen():
+        if hexa:
+            hex_stiffening(u, mesh.cells, ops.bbar, mat, alpha, share, k_ratio, stiffening)
+        else:
+            axisym_stiffening(u, mesh.cells, ops.bbar, ops.hbar, mat, alpha, share, k_ratio,
+                              stiffening)
 
     times = test.output_times(n_out)
     out = {k: np.zeros(len(times)) for k in ("time_s", "d", "force", "reaction", "bottom",
@@ -521,12 +675,7 @@ def simulate(
     steps = 0
     start = time.perf_counter()
     for k, t_stop in enumerate(times):
-        status, elem, t_eval, t, dt_prev, n = _advance_axisym(
-            t_stop, t, dt, dt_prev, kind, T_ramp, D, t_table, d_table, H, hold_damping,
-            u, v, f_int, f_c, mass, X, fix_tangent, state, glued, candidate, anchor,
-            _MODE[test.platen], float(test.friction),
-            mesh.cells, ops.bbar, ops.hbar, ops.volume, ops.gamma, k_hg, mat, mu, alpha, K,
-            g, decay, gain, s_prev, hist, u_eval, energy_acc)
+        status, elem, t_eval, t, dt_prev, n = advance(t_stop, t, dt, dt_prev, decay, gain)
         steps += n
         if status != OK:
             reason = {INVERTED: "inverted element (J <= 0)",
@@ -535,8 +684,7 @@ def simulate(
             raise SolverInstability(reason, steps, t_eval, d_mm, elem)
         d = travel(t_eval, kind, T_ramp, D, t_table, d_table)
         _record(out, k, t_eval, d, u_eval, v, f_int, f_c, state, w, mass, energy_acc, X,
-                (mesh.cells, ops.bbar, ops.hbar, ops.volume, ops.gamma, k_hg, mat, mu_lt,
-                 alpha, K))
+                energy_fn, energy_args)
         kinetic, external = out["kinetic_J"][k], out["external_J"][k]
         if not np.isfinite(u).all() or not np.isfinite(kinetic):
             raise SolverInstability("non-finite displacement or kinetic energy", steps, t_eval,
@@ -549,14 +697,22 @@ def simulate(
                 f"work plus the initial kinetic energy, {abs(external) + kinetic0:.3g} J "
                 f"(fastest node {node})", steps, t_eval, 1e3 * d, elem)
         # re-check the stable step as elements shorten and the material stiffens
-        axisym_stiffening(u, mesh.cells, ops.bbar, ops.hbar, mat, alpha, share, k_ratio,
-                          stiffening)
+        stiffen()
         dt_now = dt_safety * 2.0 * math.sqrt(rho_ratio / np.max(omega2_e * stiffening))
         if dt > dt_now and t < T:
             remaining = T - t
             dt = remaining / math.ceil(remaining / dt_now)
             decay, gain = _prony_factors(tau, dt)
     wall = time.perf_counter() - start
+
+    # Cauchy stress of the final state (the Prony history belongs to it)
+    cell_stress = np.zeros((mesh.n_cells, 6))
+    if hexa:
+        hex_stress(u_eval, mesh.cells, ops.bbar, mat, mu, alpha, K, g, decay, gain, s_prev,
+                   hist, cell_stress)
+    else:
+        axisym_stress(u_eval, mesh.cells, ops.bbar, ops.hbar, mat, mu, alpha, K, g, decay,
+                      gain, s_prev, hist, cell_stress)
 
     energy = {key: out[key] for key in ("external_J", "internal_J", "strain_J", "hourglass_J",
                                         "kinetic_J", "friction_J", "damping_J")}
@@ -566,10 +722,11 @@ def simulate(
         contact_radius_mm=1e3 * out["radius"], mesh=mesh, displacement_m=u_eval.copy(),
         n_steps=steps, dt_s=T / n_steps_plan, natural_period_s=natural_period,
         quasi_static_ratio=T / natural_period, density_kg_m3=density,
-        added_mass_fraction=added_mass_fraction, wall_s=wall)
+        added_mass_fraction=added_mass_fraction, wall_s=wall, cell_stress_Pa=cell_stress)
 
 
-def _record(out, k, t_eval, d, u, v, f_int, f_c, state, w, mass, energy_acc, X, energy_args):
+def _record(out, k, t_eval, d, u, v, f_int, f_c, state, w, mass, energy_acc, X, energy_fn,
+            energy_args):
     """Store output point ``k``: forces by virtual work and reaction, energies, contact."""
     top = state == TOP
     bottom = state == BOTTOM
@@ -583,7 +740,7 @@ def _record(out, k, t_eval, d, u, v, f_int, f_c, state, w, mass, energy_acc, X, 
     out["force"][k] = np.einsum("na,na->", f_int, wk) - tangential
     out["reaction"][k] = -f_c[top, -1].sum()
     out["bottom"][k] = f_c[bottom, -1].sum()
-    strain, hourglass = axisym_energy(u, *energy_args)
+    strain, hourglass = energy_fn(u, *energy_args)
     out["strain_J"][k] = strain
     out["hourglass_J"][k] = hourglass
     out["kinetic_J"][k] = 0.5 * np.einsum("n,na,na->", mass, v, v)
@@ -591,4 +748,6 @@ def _record(out, k, t_eval, d, u, v, f_int, f_c, state, w, mass, energy_acc, X, 
     out["external_J"][k] = energy_acc[1]
     out["friction_J"][k] = energy_acc[2]
     out["damping_J"][k] = energy_acc[3]
-    out["radius"][k] = (X[top, 0] + u[top, 0]).max() if top.any() else 0.0
+    # contact radius: distance of the outermost top-contact node from the axis
+    lateral = X[top, :-1] + u[top, :-1]
+    out["radius"][k] = np.sqrt((lateral**2).sum(axis=1)).max() if top.any() else 0.0

@@ -89,3 +89,46 @@ def prony_convolution(t_eval, s0_of, g, tau, breakpoints=()):
             total += gk * val
         out.append(total)
     return np.array(out)
+
+
+# ---------------------------------------------------------------------- hexahedron
+def distorted_hex_mesh(mesh, amount, rng):
+    """Move interior nodes of a hexahedral mesh by up to ``amount`` of the shortest edge."""
+    from solver.mesh import Mesh
+
+    boundary = mesh.boundary_nodes()
+    edges = mesh.cells[:, [0, 1, 1, 2, 0, 4]].reshape(-1, 2)
+    h = np.linalg.norm(mesh.points[edges[:, 0]] - mesh.points[edges[:, 1]], axis=1).min()
+    moved = mesh.points.copy()
+    jitter = rng.uniform(-amount * h, amount * h, size=moved.shape)
+    moved[~boundary] += jitter[~boundary]
+    return Mesh(points=moved, cells=mesh.cells, cell_type="hexahedron",
+                cell_material=mesh.cell_material)
+
+
+def hex_gradient(u, cells, ops):
+    """Mean deformation gradient F (n_elem, 3, 3) of the uniform-strain hexahedra."""
+    return np.eye(3) + np.einsum("eia,eib->eab", u[cells], ops.bbar)
+
+
+def hex_forces_numpy(u, cells, ops, material: Ogden, k_hg):
+    """Internal nodal forces (n_nodes, 3) of elastic hexahedra, via ``numpy.linalg.eigh``."""
+    F = hex_gradient(u, cells, ops)
+    S = pk2_numpy(F, material)
+    P = np.einsum("eik,ekj->eij", F, S) * ops.volume[:, None, None]
+    fe = np.einsum("eab,eib->eia", P, ops.bbar)  # (n_elem, 8, 3)
+    q = np.einsum("eki,eia->eka", ops.gamma, u[cells])  # (n_elem, 4, 3) hourglass modes
+    fe += k_hg[:, None, None] * np.einsum("eki,eka->eia", ops.gamma, q)
+    f = np.zeros_like(u)
+    np.add.at(f, cells, fe)
+    return f
+
+
+def hex_energy_numpy(u, cells, ops, material: Ogden, k_hg):
+    """(elastic energy, hourglass energy) of elastic hexahedra in J."""
+    F = hex_gradient(u, cells, ops)
+    C = np.einsum("eka,ekb->eab", F, F)
+    lam = np.sqrt(np.linalg.eigvalsh(C))
+    W = float(np.sum(ops.volume * material.strain_energy(lam)))
+    q = np.einsum("eki,eia->eka", ops.gamma, u[cells])
+    return W, float(0.5 * np.sum(k_hg[:, None, None] * q**2))
