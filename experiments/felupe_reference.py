@@ -343,7 +343,11 @@ def _umat(materials, cell_material):
     if len(materials) == 1:
         return fem.NearlyIncompressible(isochoric[0], bulk=materials[0].bulk_MPa)
     bulk = np.array([m.bulk_MPa for m in materials])[cell_material]      # (n_cells,)
-    return fem.NearlyIncompressible(_CellwiseMaterial(isochoric, cell_material), bulk=bulk)
+    umat = fem.NearlyIncompressible(_CellwiseMaterial(isochoric, cell_material), bulk=bulk)
+    # FElupe evaluates materials in chunks of cells (8192 quadrature points each); the
+    # per-cell material index and bulk modulus refer to all cells, so evaluate in one go.
+    umat.chunksize = None
+    return umat
 
 
 # ============================================================================== the solve

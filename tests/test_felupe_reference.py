@@ -218,3 +218,17 @@ def test_time_at_accuracy_reports_a_timed_curve():
     assert out["wall_s"] > 0 and out["n_dofs"] > 0
     assert out["rel_error"] <= 0.02
     assert 3.5 < out["force_N_at_max"] < 4.5  # the bonded 30 % force is ~4.08 N
+
+
+def test_layers_survive_felupe_chunked_evaluation(monkeypatch):
+    # FElupe evaluates materials in chunks of cells; the per-cell layer index must still
+    # address the right cells. Force chunking on a small mesh by shrinking the chunk size
+    # of FElupe's constitutive base class and compare with the unchunked result.
+    import felupe
+
+    kw = dict(n_radial=3, n_axial=4, grading=1.0, n_increments=3, strain=0.15)
+    args = ([1000.0, 3000.0], [4.0, 6.0], 0.49)
+    whole = fr.compression_curve(*args, layers=[12.0], **kw)["force_N"]
+    monkeypatch.setattr(felupe.constitution._base.ConstitutiveMaterial, "chunksize", 18)
+    chunked = fr.compression_curve(*args, layers=[12.0], **kw)["force_N"]
+    np.testing.assert_allclose(chunked, whole, rtol=1e-9)
