@@ -650,6 +650,60 @@ def _run_fit(args) -> int:
     return EXIT_OK
 
 
+# ---------------------------------------------------------------------------- discover
+def _add_discover(sub) -> None:
+    p = sub.add_parser(
+        "discover",
+        help="find, name and add the missing effect",
+        description="The discrepancy workflow: fit the base model (one-term Ogden, bonded, nu "
+        "assumed), find where it disagrees with the data, name the missing effect among "
+        "rate_dependence, platen_slip, contact_offset, machine_compliance, compressibility, "
+        "second_ogden_term and preconditioning (or none), add it, refit, and show the gap "
+        "shrink on fitted and held-out data. Writes a report and plots in DIR.",
+    )
+    p.add_argument("data", help="folder of rig logs")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--effects", metavar="E1,E2", help="candidate effects (default all)")
+    p.add_argument("--nu", type=float, default=0.499, help="Poisson's ratio assumed, default 0.499")
+    p.add_argument("--workers", type=int, default=None,
+                   help="local processes for the base fits (default: one per core)")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="a Dask scheduler to run on")
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    p.set_defaults(handler=_run_discover, residual="absolute")
+
+
+def _run_discover(args) -> int:
+    from .discover import EFFECTS, discover_campaign, write_discovery_report
+
+    campaign = _load_campaign_arg(args.data)
+    settings = _fit_settings(args)
+    effects = _csv_list(args.effects, "effects") or list(EFFECTS)
+    unknown = sorted(set(effects) - set(EFFECTS))
+    if unknown:
+        raise UsageError(f"--effects: unknown {unknown}; known: {', '.join(EFFECTS)}")
+    try:
+        result = discover_campaign(campaign, settings=settings, effects=effects,
+                                   workers=args.workers, scheduler=args.scheduler,
+                                   progress=not args.json, log=log)
+    except ValueError as exc:
+        raise WorkFailed(str(exc)) from exc
+    written = write_discovery_report(result, campaign, args.out)
+    if args.json:
+        emit_json({**result.to_dict(), "outputs": written})
+    else:
+        print(f"missing effect: {result.effect}"
+              + (f" (equally possible: {', '.join(result.also_possible)})"
+                 if result.also_possible else ""))
+        print(f"RMS gap: {1e3 * result.rms_before_N:.2f} mN before, "
+              f"{1e3 * result.rms_after_N:.2f} mN after")
+        for kind in result.heldout_before:
+            print(f"held-out (leave one {kind} out): "
+                  f"{1e3 * result.heldout_before[kind]['rms_N']:.2f} -> "
+                  f"{1e3 * result.heldout_after[kind]['rms_N']:.2f} mN")
+        print(f"report: {written['markdown']}")
+    return EXIT_OK
+
+
 # ---------------------------------------------------------------------------- demo
 def _add_demo(sub) -> None:
     p = sub.add_parser(
@@ -696,8 +750,8 @@ def _run_demo(args) -> int:
 
 
 # ---------------------------------------------------------------------------- parser
-_SUBCOMMANDS = [_add_demo, _add_inspect, _add_modulus, _add_simulate, _add_fit, _add_export,
-                _add_generate]
+_SUBCOMMANDS = [_add_demo, _add_inspect, _add_modulus, _add_simulate, _add_fit,
+                _add_discover, _add_export, _add_generate]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -83,6 +83,7 @@ __all__ = [
     "LayerFit",
     "CampaignFit",
     "NoiseModel",
+    "OgdenUnitResponse",
     "layer_data",
     "homogeneous_fit",
     "fit_layer",
@@ -395,7 +396,7 @@ class OgdenUnitResponse:
         for g in dict.fromkeys(geometry):
             cycles = [i for i, x in enumerate(geometry) if x == g]
             self.groups[g] = np.flatnonzero(np.isin(self.cycle_of_point, cycles))
-        self._nodes: dict[int, np.ndarray] = {}
+        self.nodes: dict[int, np.ndarray] = {}
 
     def key(self, alpha: float, geometry) -> CurveKey:
         """The forward solve of one geometry at ``alpha``."""
@@ -411,9 +412,9 @@ class OgdenUnitResponse:
 
     def node(self, k: int) -> np.ndarray:
         """Unit forces at the grid node ``alpha_step * k`` (k >= 1)."""
-        if k not in self._nodes:
-            self._nodes[k] = self.direct(self.settings.alpha_step * k)
-        return self._nodes[k]
+        if k not in self.nodes:
+            self.nodes[k] = self.direct(self.settings.alpha_step * k)
+        return self.nodes[k]
 
     def _local(self, alpha: float):
         step = self.settings.alpha_step
@@ -492,14 +493,53 @@ class NoiseModel:
         """Independent 5 % scatter: the weights of the first fit."""
         return cls(np.zeros((2, 2)), 0.0, 0.05)
 
-    def whitener(self, data: LayerData, fitted: np.ndarray, sensitivity: np.ndarray | None,
-                 relative: bool) -> np.ndarray:
-        """Whitening matrix W (n_points, n_points) of the flattened valid points.
+    @classmethod
+    def from_sample_fits(cls, data: LayerData, fitted: np.ndarray, per_sample: dict,
+                         warnings: list) -> NoiseModel:
+        """Variance components from fits of every sample on its own.
 
-        Block diagonal by sample; within a sample block the covariance is
+        Parameters
+        ----------
+        fitted : ndarray, shape (n_cycles, n_levels)
+            Each cycle's prediction from its own sample's fit (N).
+        per_sample : dict
+            sample -> (mu_Pa, alpha) of that fit.
+        warnings : list
+            Appended to when the layer has a single sample.
+        """
+        samples = np.array([c.sample for c in data.cycles])
+        q = data.force / fitted - 1.0
+        valid = data.valid
+        n_cyc = len(data.cycles)
+        cycle_mean = np.array([q[c][valid[c]].mean() for c in range(n_cyc)])
+        m = valid.sum(axis=1)
+        s_e2 = sum(np.sum((q[c][valid[c]] - cycle_mean[c]) ** 2) for c in range(n_cyc))
+        s_e2 /= max(int(np.sum(m - 1)), 1)
+        # each sample's own fit absorbs the mean of its cycles: the cycle scatter is the spread
+        # of cycle means within samples, corrected for the level scatter
+        ss, dof = 0.0, 0
+        for s in per_sample:
+            means = cycle_mean[samples == s]
+            ss += np.sum((means - means.mean()) ** 2)
+            dof += len(means) - 1
+        s_a2 = max(0.0, ss / dof - s_e2 / float(np.mean(m))) if dof else 0.0
+        if len(per_sample) > 1:
+            theta = np.array([[math.log(mu), a] for mu, a in per_sample.values()])
+            cov = np.cov(theta.T)
+        else:
+            cov = np.zeros((2, 2))
+            warnings.append("one sample only: the uncertainty cannot include the scatter "
+                            "between samples")
+        return cls(sample_cov=cov, cycle=math.sqrt(s_a2), level=max(math.sqrt(s_e2), 1e-4))
+
+    def covariance(self, data: LayerData, fitted: np.ndarray, sensitivity: np.ndarray | None,
+                   relative: bool) -> np.ndarray:
+        """Covariance (n_points, n_points) of the flattened valid points' residuals.
+
+        Block diagonal by sample; within a sample block
         ``J Sigma_s J^T + diag(F) (cycle^2 B + level^2 I) diag(F) + diag(noise^2)`` with
         ``J = [dF/dlog mu, dF/dalpha]`` (``sensitivity``, shape (n_points, 2)) and ``B`` the
-        same-cycle indicator. ``W @ r`` has unit covariance under this model.
+        same-cycle indicator; relative residuals divide everything by the measured force.
         """
         valid = data.valid
         flat_cycle = np.repeat(np.arange(len(data.cycles)), valid.sum(axis=1))
@@ -510,17 +550,22 @@ class NoiseModel:
         if relative:
             F, noise, J = F / y, noise / y, J / y[:, None]
         samples = np.array([data.cycles[c].sample for c in flat_cycle])
-        W = np.zeros((len(F), len(F)))
-        for s in dict.fromkeys(samples):
-            idx = np.flatnonzero(samples == s)
-            cyc = flat_cycle[idx]
-            Fi = F[idx]
-            cov = (J[idx] @ self.sample_cov @ J[idx].T
-                   + Fi[:, None] * Fi[None, :] * self.cycle**2 * (cyc[:, None] == cyc[None, :])
-                   + np.diag((self.level * Fi) ** 2 + noise[idx] ** 2))
-            L = linalg.cholesky(cov, lower=True)
-            W[np.ix_(idx, idx)] = linalg.solve_triangular(L, np.eye(len(idx)), lower=True)
-        return W
+        same_sample = samples[:, None] == samples[None, :]
+        same_cycle = flat_cycle[:, None] == flat_cycle[None, :]
+        return (same_sample * (J @ self.sample_cov @ J.T)
+                + F[:, None] * F[None, :] * self.cycle**2 * same_cycle
+                + np.diag((self.level * F) ** 2 + noise**2))
+
+    def whitener(self, data: LayerData, fitted: np.ndarray, sensitivity: np.ndarray | None,
+                 relative: bool) -> np.ndarray:
+        """Whitening matrix W (n_points, n_points): ``W @ r`` has unit covariance."""
+        return whitener(self.covariance(data, fitted, sensitivity, relative))
+
+
+def whitener(cov: np.ndarray) -> np.ndarray:
+    """Inverse Cholesky factor of a covariance matrix: W with W cov W^T = I."""
+    L = linalg.cholesky(cov, lower=True)
+    return linalg.solve_triangular(L, np.eye(len(cov)), lower=True)
 
 
 def _noise_from_samples(data: LayerData, unit: OgdenUnitResponse, W0: np.ndarray,
@@ -549,29 +594,7 @@ def _noise_from_samples(data: LayerData, unit: OgdenUnitResponse, W0: np.ndarray
         per_sample[s] = (mu_s, alpha_s)
         mask = (samples == s)[:, None] & data.valid
         fitted[mask] = mu_s * unit(alpha_s)[idx]
-    q = data.force / fitted - 1.0
-    valid = data.valid
-    n_cyc = len(data.cycles)
-    cycle_mean = np.array([q[c][valid[c]].mean() for c in range(n_cyc)])
-    m = valid.sum(axis=1)
-    s_e2 = sum(np.sum((q[c][valid[c]] - cycle_mean[c]) ** 2) for c in range(n_cyc))
-    s_e2 /= max(int(np.sum(m - 1)), 1)
-    # each sample's own fit absorbs the mean of its cycles: the cycle scatter is the spread
-    # of cycle means within samples, corrected for the level scatter
-    ss, dof = 0.0, 0
-    for s in per_sample:
-        means = cycle_mean[samples == s]
-        ss += np.sum((means - means.mean()) ** 2)
-        dof += len(means) - 1
-    s_a2 = max(0.0, ss / dof - s_e2 / float(np.mean(m))) if dof else 0.0
-    if len(per_sample) > 1:
-        theta = np.array([[math.log(mu), a] for mu, a in per_sample.values()])
-        cov = np.cov(theta.T)
-    else:
-        cov = np.zeros((2, 2))
-        warnings.append("one sample only: the uncertainty cannot include the scatter between "
-                        "samples")
-    noise = NoiseModel(sample_cov=cov, cycle=math.sqrt(s_a2), level=max(math.sqrt(s_e2), 1e-4))
+    noise = NoiseModel.from_sample_fits(data, fitted, per_sample, warnings)
     return noise, per_sample
 
 
@@ -602,6 +625,8 @@ class LayerFit:
     redchi: float
     ndata: int
     noise: NoiseModel
+    covariance: np.ndarray
+    alpha_nodes: dict
     homogeneous: dict
     initial: dict
     surrogate_error: float
@@ -782,7 +807,8 @@ def fit_layer(cycles: Sequence, settings: FitSettings | None = None,
     fitted = np.full(valid.shape, np.nan)
     fitted[valid] = mu1 * unit(alpha1)
     J = np.column_stack([fitted[valid], mu1 * unit.derivative(alpha1)])
-    W = noise.whitener(data, fitted, J, relative)
+    cov = noise.covariance(data, fitted, J, relative)
+    W = whitener(cov)
     alpha2 = _search_alpha(lambda a: project(a, W)[1], step, alpha1, bounds)
     mu2, _ = project(alpha2, W)
 
@@ -839,7 +865,8 @@ def fit_layer(cycles: Sequence, settings: FitSettings | None = None,
         mu_stderr_Pa=mu_se, alpha_stderr=alpha_se, mu_alpha_correlation=float(corr),
         rms_N=rms, n_cycles=len(data.cycles), ci=ci, aic=float(result.aic),
         bic=float(result.bic), chisqr=float(result.chisqr), redchi=float(result.redchi),
-        ndata=int(result.ndata), noise=noise, homogeneous=hom,
+        ndata=int(result.ndata), noise=noise, covariance=cov, alpha_nodes=dict(unit.nodes),
+        homogeneous=hom,
         initial={"mu_Pa_modulus": mu_e, "alpha_homogeneous": hom["alpha"],
                  "alpha_guess": guess, "alpha_first_fit": alpha1,
                  "per_sample": {k: {"mu_Pa": v[0], "alpha": v[1]}

@@ -1,0 +1,1133 @@
+r"""Discrepancy workflow: find where simulation and data disagree, name the missing effect, add
+it to the model, refit, and show the gap shrink.
+
+1. **Base fit.** One-term Ogden per layer, bonded platens, Poisson's ratio as assumed
+   (:func:`calib.fit.fit_layer`), with its noise model: the residuals of one sample are
+   correlated (a stiffer sample is stiffer everywhere) and cycles are judged on a modest number
+   of strain levels, so chi-square and information criteria see the information the data hold.
+2. **Candidates.** Each effect of :data:`EFFECTS` is a concrete extension of the forward or the
+   observation model with one or two parameters shared by the campaign (the same gel, rig and
+   protocol), while mu and alpha stay per layer:
+
+   ``rate_dependence``
+       a Prony term on the Ogden moduli, parameters ``g1`` (Abaqus-normalised) and ``tau1_s``;
+   ``platen_slip``
+       Coulomb friction at the platens instead of bonding, ``friction``;
+   ``contact_offset``
+       the platen meets the full sample face ``offset_mm`` after (or before, < 0) the detected
+       contact point;
+   ``machine_compliance``
+       a spring in series with the sample, ``compliance_mm_per_N``: the logged travel is the
+       sample's compression plus force times compliance;
+   ``compressibility``
+       Poisson's ratio ``nu`` fitted instead of assumed;
+   ``second_ogden_term``
+       a second Ogden term with exponent ``alpha2`` carrying a fraction ``fraction2`` of the
+       small-strain shear modulus;
+   ``preconditioning``
+       the modulus of a sample's k-th test is ``mu (1 - softening)^(k-1)``.
+
+   For a fast refit, an effect enters as a relative change of the predicted force,
+   :math:`F = \mu\, U(\alpha)\, e^{m(\theta)}`: forward effects from FE solves on a grid of the
+   effect parameter (the layer's fitted alpha, its median geometry, each rate), observation
+   effects from the layer's own simulated curves. With :math:`\theta` given, every layer's mu
+   (closed form) and alpha (the alpha surrogate of the base fit) are refitted, so the shared
+   :math:`\theta` is optimised on the whole campaign.
+3. **Naming.** Candidates are ranked by the gain in generalised chi-square, expressed as
+   :math:`\Delta BIC = -\Delta\chi^2 + k \ln n` with :math:`n` the number of cycles (the honest
+   count of independent curves, not of points). The best few are checked on held-out data: fit
+   on two rates and predict the third, and leave one sample of every layer out. An effect is
+   accepted only if it passes all of: :math:`\Delta BIC` below a threshold, held-out RMS
+   improved by a threshold in both kinds of folds, and plausible parameter values. Accepted
+   effects stay in the model and the search repeats. Thresholds were calibrated on null
+   campaigns (``experiments/null_calibration.py``) so that at most 5 % of them report an effect.
+   Where the runner-up passes too and explains the data almost as well, both are named.
+4. **The gap.** The accepted model is re-evaluated with direct FE solves of every cycle (the
+   full extended material and observation model) and the RMS gap before and after, on fitted
+   and held-out data, is reported per layer, with residual plots before and after.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Sequence
+
+import numpy as np
+from scipy import interpolate, optimize
+
+from .fit import (
+    CurveKey,
+    FitSettings,
+    ForwardModel,
+    LayerFit,
+    OgdenUnitResponse,
+    _search_alpha,
+    _varpro_mu,
+    fit_campaign,
+    whitener,
+)
+
+__all__ = ["EFFECTS", "Effect", "DiscoveryResult", "discover_campaign",
+           "write_discovery_report", "THRESHOLDS"]
+
+EFFECTS = ("rate_dependence", "platen_slip", "contact_offset", "machine_compliance",
+           "compressibility", "second_ogden_term", "preconditioning")
+
+#: Acceptance thresholds, calibrated on null (``clean``) campaigns by
+#: ``experiments/null_calibration.py`` (see its output in experiments/null_calibration.json).
+THRESHOLDS = {
+    "delta_bic": -40.0,          # at most this (negative: the extended model is better)
+    "heldout_improvement": 0.05,  # at least this relative drop of the held-out RMS, both folds
+}
+#: Candidates checked on held-out folds per round.
+TOP_CANDIDATES = 3
+
+
+# ============================================================================ layer context
+class LayerContext:
+    """What the fast refits of one layer need: its data, base fit, alpha surrogate and noise
+    model, and per-point labels (rate, test, sample, strain level, travel)."""
+
+    def __init__(self, fit: LayerFit, forward: ForwardModel, settings: FitSettings):
+        self.fit = fit
+        self.layer = fit.layer
+        self.data = fit.data
+        self.unit = OgdenUnitResponse(forward, fit.data, settings)
+        self.unit.nodes.update(fit.alpha_nodes)
+        self.forward = forward
+        valid = fit.data.valid
+        cyc = self.unit.cycle_of_point
+        infos = fit.data.cycles
+        self.y = fit.data.force[valid]
+        self.cov = fit.covariance
+        self.rate = np.array([infos[c].rate_mm_per_s for c in cyc])
+        self.test = np.array([infos[c].test for c in cyc])
+        self.sample = np.array([infos[c].sample for c in cyc])
+        self.cycle = cyc
+        self.level = np.broadcast_to(fit.data.levels, valid.shape)[valid]
+        self.travel = self.unit.travel
+        self.height = np.array([infos[c].height_mm for c in cyc])
+        heights = [c.height_mm for c in infos]
+        diameters = [c.diameter_mm for c in infos]
+        self.geometry = (float(np.median(diameters)), float(np.median(heights)))
+        self.rates = sorted({round(r, 6) for r in self.rate})
+        #: alpha at which the effect grids are computed (the base fit's, then refined)
+        self.alpha_ref = fit.alpha
+        self._w: dict[bytes, np.ndarray] = {}
+
+    def whitener(self, mask: np.ndarray) -> np.ndarray:
+        """Whitening matrix of the points in ``mask`` (cached)."""
+        key = np.packbits(mask).tobytes()
+        if key not in self._w:
+            self._w[key] = whitener(self.cov[np.ix_(mask, mask)])
+        return self._w[key]
+
+    def base_key(self, alpha: float, geometry=None, **overrides) -> CurveKey:
+        """The base model's forward solve (one-term Ogden, bonded) with overrides."""
+        d, h = geometry or self.geometry
+        key = CurveKey(alpha=(float(alpha),), diameter_mm=d, height_mm=h,
+                       nu=self.unit.settings.nu, platen=self.unit.settings.platen)
+        return dataclasses.replace(key, **overrides)
+
+    def curve_at_strain(self, key: CurveKey, strain) -> np.ndarray:
+        """Unit force of a solve at the given strains of its own height."""
+        return self.forward.unit_forces(key, np.asarray(strain) * key.height_mm)
+
+
+# ============================================================================ effects
+class Effect:
+    """A candidate extension of the model with a few parameters (see the module notes).
+
+    Subclasses set ``name``, ``names`` (parameter names as reported), ``bounds`` (search box
+    of the internal parameters), ``null`` (internal values that reduce to the base model) and
+    implement :meth:`modification`, :meth:`report`, :meth:`plausible` and
+    :meth:`direct`.
+    """
+
+    name = ""
+    names: tuple[str, ...] = ()
+    bounds: tuple[tuple[float, float], ...] = ()
+    null: tuple[float, ...] = ()
+    #: whether :meth:`modification` depends on the layer's current alpha / mu
+    uses_alpha = False
+    uses_mu = False
+
+    def prepare(self, ctx: LayerContext) -> None:
+        """Precompute what :meth:`modification` needs for this layer (FE solves)."""
+
+    def modification(self, theta, ctx: LayerContext, mu: float, alpha: float) -> np.ndarray:
+        """Log of the extended over the base prediction at the layer's points, (n_points,)."""
+        raise NotImplementedError
+
+    def report(self, theta) -> dict:
+        """Parameters in the reported (physical) names and units."""
+        return dict(zip(self.names, (float(t) for t in theta)))
+
+    def plausible(self, theta) -> tuple[bool, str]:
+        """Whether the parameters are physically plausible, and why not."""
+        return True, ""
+
+    def key_overrides(self, theta, rate: float) -> dict:
+        """Forward-model changes (fields of CurveKey) of the full extended model."""
+        return {}
+
+    def observe(self, theta, strain, unit_force, mu, test, height_mm):
+        """Observation-model changes: the measured force from the simulated unit curve.
+
+        ``unit_force(strain)`` is the simulated unit force of the cycle; returns the force (N)
+        at the measured ``strain`` for the cycle's ``test`` order.
+        """
+        return mu * unit_force(strain)
+
+
+class RateDependence(Effect):
+    """A Prony term: F = mu_inf (f0 + gamma f_h(tau)), gamma = mu_1 / mu_inf; the force is
+    linear in gamma (checked: within 0.5 % of the viscous part), so one solve per (tau, rate)
+    at gamma = 1 tabulates the relative change ln(1 + gamma h(tau)), interpolated in log tau."""
+
+    name = "rate_dependence"
+    names = ("g1", "tau1_s")
+    bounds = ((0.0, 9.0), (math.log(0.03), math.log(100.0)))  # gamma, ln tau
+    null = (0.0, 0.0)
+    TAUS = np.exp(np.linspace(math.log(0.03), math.log(100.0), 9))
+
+    def prepare(self, ctx):
+        table = {}
+        for rate in ctx.rates:
+            ref = ctx.base_key(ctx.alpha_ref, g=(0.0,), tau_s=(1.0,), rate_mm_per_s=rate)
+            f0 = ctx.curve_at_strain(ref, ctx.data.levels)
+            h = []
+            for tau in self.TAUS:
+                key = dataclasses.replace(ref, g=(0.5,), tau_s=(float(tau),))
+                # g = 0.5 is gamma = mu_1 / mu_inf = 1 (mu_Pa is mu_inf): f = f0 + f_h
+                f = ctx.curve_at_strain(key, ctx.data.levels)
+                h.append(f / f0 - 1.0)
+            table[rate] = interpolate.CubicSpline(np.log(self.TAUS), np.array(h), axis=0)
+        ctx.rate_table = table
+        level_index = np.searchsorted(ctx.data.levels, ctx.level)
+        ctx.rate_index = level_index
+
+    def modification(self, theta, ctx, mu, alpha):
+        gamma, log_tau = theta
+        out = np.empty(len(ctx.y))
+        for rate, spline in ctx.rate_table.items():
+            sel = np.isclose(ctx.rate, rate)
+            h = spline(log_tau)[ctx.rate_index[sel]]
+            out[sel] = np.log1p(gamma * h)
+        return out
+
+    def report(self, theta):
+        gamma, log_tau = theta
+        return {"g1": gamma / (1.0 + gamma), "tau1_s": math.exp(log_tau)}
+
+    def plausible(self, theta):
+        p = self.report(theta)
+        if not 0.02 <= p["g1"] <= 0.95:
+            return False, f"g1 = {p['g1']:.3f} outside [0.02, 0.95]"
+        lo, hi = self.TAUS[0] * 1.05, self.TAUS[-1] / 1.05
+        if not lo <= p["tau1_s"] <= hi:
+            return False, f"tau1 = {p['tau1_s']:.3g} s at the edge of the searched range"
+        return True, ""
+
+    def key_overrides(self, theta, rate):
+        p = self.report(theta)
+        return {"g": (p["g1"],), "tau_s": (p["tau1_s"],), "rate_mm_per_s": rate}
+
+
+class _GridForwardEffect(Effect):
+    """A forward-model effect with one parameter tabulated on a grid of FE solves."""
+
+    values: np.ndarray = np.zeros(0)
+    reference: float = 0.0
+
+    def overrides(self, value: float) -> dict:
+        raise NotImplementedError
+
+    def prepare(self, ctx):
+        base = ctx.curve_at_strain(ctx.base_key(ctx.alpha_ref), ctx.data.levels)
+        rows = []
+        for v in self.values:
+            if v == self.reference:
+                rows.append(np.zeros_like(base))
+                continue
+            key = ctx.base_key(ctx.alpha_ref, **self.overrides(float(v)))
+            rows.append(np.log(ctx.curve_at_strain(key, ctx.data.levels) / base))
+        setattr(ctx, f"{self.name}_table",
+                interpolate.PchipInterpolator(self.values, np.array(rows), axis=0))
+        ctx.level_index = np.searchsorted(ctx.data.levels, ctx.level)
+
+    def modification(self, theta, ctx, mu, alpha):
+        table = getattr(ctx, f"{self.name}_table")
+        return table(theta[0])[ctx.level_index]
+
+    def key_overrides(self, theta, rate):
+        return self.overrides(float(theta[0]))
+
+
+class PlatenSlip(_GridForwardEffect):
+    """Coulomb friction instead of bonded platens (friction 1 counts as bonded)."""
+
+    name = "platen_slip"
+    names = ("friction",)
+    bounds = ((0.0, 1.0),)
+    null = (1.0,)
+    values = np.array([0.0, 0.03, 0.06, 0.1, 0.15, 0.2, 0.3, 0.45, 1.0])
+    reference = 1.0
+
+    def overrides(self, value):
+        if value >= 1.0:
+            return {}
+        if value == 0.0:
+            return {"platen": "frictionless"}
+        return {"platen": "coulomb", "friction": value}
+
+    def plausible(self, theta):
+        if theta[0] >= 0.8:
+            return False, f"friction {theta[0]:.2f}: platens effectively bonded"
+        return True, ""
+
+
+class Compressibility(_GridForwardEffect):
+    """Poisson's ratio fitted instead of the assumed 0.499."""
+
+    name = "compressibility"
+    names = ("nu",)
+    bounds = ((0.40, 0.499),)
+    null = (0.499,)
+    values = np.array([0.40, 0.43, 0.45, 0.46, 0.47, 0.48, 0.49, 0.495, 0.499])
+    reference = 0.499
+
+    def overrides(self, value):
+        return {} if value == self.reference else {"nu": value}
+
+    def plausible(self, theta):
+        if theta[0] <= 0.405:
+            return False, f"nu = {theta[0]:.3f} at the edge of the searched range"
+        if theta[0] >= 0.497:
+            return False, f"nu = {theta[0]:.4f}: no change from the assumed value"
+        return True, ""
+
+
+def _uniaxial(lam, alpha):
+    """Unit-modulus incompressible uniaxial nominal stress (Pa per Pa of mu)."""
+    return 2.0 / alpha * (lam ** (alpha - 1.0) - lam ** (-0.5 * alpha - 1.0))
+
+
+class SecondOgdenTerm(Effect):
+    """A second Ogden term: mu_2 = fraction2 * mu, mu_1 = (1 - fraction2) * mu, so the
+    small-strain modulus is unchanged; mu_i alpha_i > 0. For the fast refit the relative
+    change of the force is taken from the homogeneous closed form (the bonded curve's change of
+    shape follows the material's to first order); the direct check solves the two-term law."""
+
+    name = "second_ogden_term"
+    uses_alpha = True
+    names = ("alpha2", "fraction2")
+    bounds = ((-8.0, 16.0), (-0.6, 0.6))
+    null = (2.0, 0.0)
+
+    def modification(self, theta, ctx, mu, alpha):
+        a2, r = theta
+        if abs(a2) < 0.2:
+            a2 = math.copysign(0.2, a2 or 1.0)
+        lam = 1.0 - ctx.level
+        one = _uniaxial(lam, alpha)
+        two = (1.0 - r) * one + r * _uniaxial(lam, a2)
+        ratio = two / one
+        return np.log(np.where(ratio > 1e-6, ratio, 1e-6))
+
+    def feasible(self, theta, alpha):
+        a2, r = theta
+        return r * a2 >= 0.0 and (1.0 - r) * alpha > 0.0
+
+    def plausible(self, theta):
+        a2, r = theta
+        if abs(r) < 0.02:
+            return False, f"fraction2 = {r:.3f}: no second term"
+        if r * a2 <= 0:
+            return False, "mu2 * alpha2 <= 0 violates the stability condition"
+        if min(abs(a2 - b) for b in self.bounds[0]) < 0.2 or abs(abs(r) - 0.6) < 0.02:
+            return False, f"alpha2 = {a2:.2f}, fraction2 = {r:.2f} at the edge of the range"
+        return True, ""
+
+    def key_overrides(self, theta, rate):
+        return {}
+
+    def material_key(self, theta, key: CurveKey) -> CurveKey:
+        a2, r = theta
+        return dataclasses.replace(key, alpha=(key.alpha[0], float(a2)),
+                                   fractions=(1.0 - float(r), float(r)))
+
+
+class ContactOffset(Effect):
+    """The platen meets the full face ``offset_mm`` after the detected contact:
+    F_measured(d) = F(d - offset)."""
+
+    name = "contact_offset"
+    names = ("offset_mm",)
+    bounds = ((-1.0, 0.4),)
+    null = (0.0,)
+
+    def prepare(self, ctx):
+        ctx.offset_curves = {g: ctx.forward.curve(ctx.unit.key(ctx.alpha_ref, g))
+                             for g in ctx.unit.groups}
+
+    def modification(self, theta, ctx, mu, alpha):
+        out = np.empty(len(ctx.y))
+        for g, idx in ctx.unit.groups.items():
+            spline = ctx.offset_curves[g]
+            d = ctx.travel[idx]
+            shifted = np.maximum(d - theta[0], 1e-3)
+            out[idx] = np.log(spline(shifted) / spline(d))
+        return out
+
+    def observe(self, theta, strain, unit_force, mu, test, height_mm):
+        shifted = np.maximum(np.asarray(strain) - theta[0] / height_mm, 1e-6)
+        return mu * unit_force(shifted)
+
+    def plausible(self, theta):
+        if abs(theta[0]) < 0.01:
+            return False, "offset below 0.01 mm"
+        if theta[0] <= self.bounds[0][0] + 0.02 or theta[0] >= self.bounds[0][1] - 0.02:
+            return False, f"offset {theta[0]:.3f} mm at the edge of the searched range"
+        return True, ""
+
+
+def _compliant_strain(strain_m, unit_force, mu, c_mm_per_N, height_mm, iterations=40):
+    """Sample strain s with s + c mu f(s) / H = measured strain (fixed point, monotone)."""
+    s = np.array(strain_m, dtype=float)
+    for _ in range(iterations):
+        s_new = strain_m - c_mm_per_N * mu * unit_force(np.maximum(s, 0.0)) / height_mm
+        if np.max(np.abs(s_new - s)) < 1e-10:
+            s = s_new
+            break
+        s = 0.5 * (s + s_new)
+    return np.maximum(s, 1e-6)
+
+
+class MachineCompliance(Effect):
+    """A spring in series: logged travel = sample compression + F * compliance."""
+
+    name = "machine_compliance"
+    uses_mu = True
+    names = ("compliance_mm_per_N",)
+    bounds = ((-0.05, 0.3),)
+    null = (0.0,)
+
+    def prepare(self, ctx):
+        ctx.compliance_curves = {g: ctx.forward.curve(ctx.unit.key(ctx.alpha_ref, g))
+                                 for g in ctx.unit.groups}
+
+    def modification(self, theta, ctx, mu, alpha):
+        out = np.empty(len(ctx.y))
+        for g, idx in ctx.unit.groups.items():
+            spline = ctx.compliance_curves[g]
+            h = g[1]
+            strain = ctx.travel[idx] / h
+
+            def f(s, spline=spline, h=h):
+                return spline(s * h)
+
+            s = _compliant_strain(strain, f, mu, theta[0], h)
+            out[idx] = np.log(f(s) / f(strain))
+        return out
+
+    def observe(self, theta, strain, unit_force, mu, test, height_mm):
+        s = _compliant_strain(np.asarray(strain, float), unit_force, mu, theta[0], height_mm)
+        return mu * unit_force(s)
+
+    def plausible(self, theta):
+        if theta[0] <= 0.002:
+            return False, f"compliance {theta[0]:.4f} mm/N is not positive"
+        if theta[0] >= self.bounds[0][1] - 0.01:
+            return False, "compliance at the edge of the searched range"
+        return True, ""
+
+
+class Preconditioning(Effect):
+    """Softening from one test of a sample to the next: mu_k = mu (1 - softening)^(k-1)."""
+
+    name = "preconditioning"
+    names = ("softening",)
+    bounds = ((-0.3, 0.5),)
+    null = (0.0,)
+
+    def modification(self, theta, ctx, mu, alpha):
+        return (ctx.test - 1) * math.log1p(-theta[0])
+
+    def observe(self, theta, strain, unit_force, mu, test, height_mm):
+        return mu * (1.0 - theta[0]) ** (test - 1) * unit_force(strain)
+
+    def plausible(self, theta):
+        if not 0.005 <= theta[0] <= 0.45:
+            return False, f"softening {theta[0]:.3f} outside [0.005, 0.45]"
+        return True, ""
+
+
+def make_effect(name: str) -> Effect:
+    """The candidate effect of this name."""
+    classes = {cls.name: cls for cls in (RateDependence, PlatenSlip, ContactOffset,
+                                         MachineCompliance, Compressibility, SecondOgdenTerm,
+                                         Preconditioning)}
+    if name not in classes:
+        raise ValueError(f"unknown effect {name!r}; known: {EFFECTS}")
+    return classes[name]()
+
+
+# ============================================================================ fast refits
+@dataclasses.dataclass
+class Model:
+    """The base model plus a list of effects with their (internal) parameters."""
+
+    effects: list
+    theta: list
+
+    def modification(self, ctx, mu, alpha):
+        out = np.zeros(len(ctx.y))
+        for e, t in zip(self.effects, self.theta):
+            out = out + e.modification(t, ctx, mu, alpha)
+        return out
+
+    @property
+    def name(self) -> str:
+        return "+".join(e.name for e in self.effects) or "base"
+
+
+def _layer_refit(ctx: LayerContext, model: Model, mask: np.ndarray, alpha0: float,
+                 mu0: float | None = None, iterations: int = 6):
+    """Best (mu, alpha) of one layer on the masked points with the model's effects fixed.
+
+    Gauss-Newton in alpha with mu eliminated: with U(alpha) linearised about the current alpha,
+    the model mu U + (mu dalpha) U' is linear in (mu, mu dalpha), a two-column weighted least
+    squares. Converges in a few iterations from the previous optimum.
+
+    Returns (chi2, mu, alpha, prediction at every point of the layer).
+    """
+    W = ctx.whitener(mask)
+    y = ctx.y[mask]
+    lo, hi = ctx.unit.settings.alpha_bounds
+    static = not any(e.uses_alpha or e.uses_mu for e in model.effects)
+    mu = ctx.fit.mu_Pa if mu0 is None else mu0
+    factor = np.exp(model.modification(ctx, mu, alpha0)) if static else None
+    alpha = alpha0
+    Wy = W @ y
+    for _ in range(iterations):
+        if not static:
+            factor = np.exp(model.modification(ctx, mu, alpha))
+        U = ctx.unit(alpha) * factor
+        dU = ctx.unit.derivative(alpha) * factor
+        A = W @ np.column_stack([U[mask], dU[mask]])
+        coef, *_ = np.linalg.lstsq(A, Wy, rcond=None)
+        mu = float(coef[0])
+        step = float(coef[1] / coef[0]) if coef[0] != 0 else 0.0
+        step = max(-0.5, min(0.5, step))  # stay within the surrogate's trust region
+        alpha_new = min(hi, max(lo, alpha + step))
+        if abs(alpha_new - alpha) < 1e-5:
+            alpha = alpha_new
+            break
+        alpha = alpha_new
+    if not static:
+        factor = np.exp(model.modification(ctx, mu, alpha))
+    U = ctx.unit(alpha) * factor
+    mu = _varpro_mu(U[mask], y, W)
+    r = W @ (mu * U[mask] - y)
+    return float(r @ r), mu, alpha, mu * U
+
+
+def _campaign_fit(contexts, model: Model, masks=None, warm=None):
+    """Refit every layer with the model's effects at their parameters; total chi-square.
+
+    ``warm`` maps layer -> (mu, alpha) to start from and is updated with the new optimum."""
+    total = 0.0
+    per_layer = {}
+    for ctx in contexts:
+        mask = np.ones(len(ctx.y), bool) if masks is None else masks[ctx.layer]
+        if not mask.any():
+            continue
+        mu0, alpha0 = (warm or {}).get(ctx.layer, (ctx.fit.mu_Pa, ctx.fit.alpha))
+        chi2, mu, alpha, pred = _layer_refit(ctx, model, mask, alpha0, mu0)
+        if warm is not None:
+            warm[ctx.layer] = (mu, alpha)
+        total += chi2
+        per_layer[ctx.layer] = (chi2, mu, alpha, pred)
+    return total, per_layer
+
+
+def _optimise(contexts, accepted: Model, effect: Effect, masks=None, start=None,
+              maxfev: int = 200):
+    """Optimise the new effect's parameters (accepted effects refitted jointly)."""
+    warm: dict = {}
+
+    def objective(flat):
+        theta = _split(flat, accepted, effect)
+        if isinstance(effect, SecondOgdenTerm) and not _feasible_second(theta[-1], contexts):
+            return 1e30
+        model = Model(accepted.effects + [effect], theta)
+        return _campaign_fit(contexts, model, masks, warm)[0]
+
+    bounds = [b for e in accepted.effects for b in e.bounds] + list(effect.bounds)
+    x0 = (np.concatenate([np.asarray(t, float) for t in accepted.theta] + [np.asarray(
+        effect.null if start is None else start, float)]))
+    n_new = len(effect.bounds)
+    # coarse scan of the new parameters, accepted ones held, then a local polish of all
+    if start is None:
+        grids = [np.linspace(lo, hi, 9 if n_new == 1 else 6) for lo, hi in effect.bounds]
+        best, best_x = math.inf, x0
+        for point in np.array(np.meshgrid(*grids, indexing="ij")).reshape(n_new, -1).T:
+            x = x0.copy()
+            x[-n_new:] = point
+            val = objective(x)
+            if val < best:
+                best, best_x = val, x
+        x0 = best_x
+    if len(x0) == 1:
+        lo, hi = bounds[0]
+        width = (hi - lo) / 8.0 if start is None else (hi - lo) / 4.0
+        res = optimize.minimize_scalar(lambda v: objective(np.array([v])),
+                                       bounds=(max(lo, x0[0] - width), min(hi, x0[0] + width)),
+                                       method="bounded", options={"xatol": 1e-4 * (hi - lo)})
+        x, fun = np.array([res.x]), res.fun
+    else:
+        res = optimize.minimize(objective, x0, method="Nelder-Mead", bounds=bounds,
+                                options={"xatol": 1e-3, "fatol": 1e-2, "maxfev": maxfev})
+        x, fun = res.x, res.fun
+    if fun > objective(x0):
+        x, fun = x0, objective(x0)
+    theta = _split(x, accepted, effect)
+    return Model(accepted.effects + [effect], theta), fun
+
+
+def _refresh_noise(contexts, model: Model) -> None:
+    """Re-estimate every layer's noise model with the extended model (per-sample refits), so
+    that what the accepted effect explains no longer counts as scatter."""
+    from .fit import NoiseModel
+
+    for ctx in contexts:
+        per_sample = {}
+        fitted_points = np.empty(len(ctx.y))
+        for s in dict.fromkeys(ctx.sample):
+            mask = ctx.sample == s
+            _, mu, alpha, pred = _layer_refit(ctx, model, mask, ctx.fit.alpha)
+            per_sample[s] = (mu, alpha)
+            fitted_points[mask] = pred[mask]
+        grid = np.full(ctx.data.valid.shape, np.nan)
+        grid[ctx.data.valid] = fitted_points
+        noise = NoiseModel.from_sample_fits(ctx.data, grid, per_sample, [])
+        _, mu, alpha, pred = _layer_refit(ctx, model, np.ones(len(ctx.y), bool), ctx.fit.alpha)
+        factor = np.exp(model.modification(ctx, mu, alpha))
+        J = np.column_stack([pred, mu * ctx.unit.derivative(alpha) * factor])
+        grid = np.full(ctx.data.valid.shape, np.nan)
+        grid[ctx.data.valid] = pred
+        ctx.cov = noise.covariance(ctx.data, grid, J, relative=False)
+        ctx.noise = noise
+        ctx._w.clear()
+
+
+def _split(flat, accepted: Model, effect: Effect):
+    out, i = [], 0
+    for e in accepted.effects + [effect]:
+        n = len(e.bounds)
+        out.append(tuple(float(v) for v in flat[i:i + n]))
+        i += n
+    return out
+
+
+def _feasible_second(theta, contexts):
+    return all(SecondOgdenTerm().feasible(theta, ctx.fit.alpha) for ctx in contexts)
+
+
+# ============================================================================ held-out folds
+def _folds(contexts):
+    """Leave-one-rate-out and leave-one-sample-out masks: {kind: [(label, masks)]}."""
+    rates = sorted({r for ctx in contexts for r in ctx.rates})
+    loro = []
+    for r in rates:
+        loro.append((f"rate {r:g} mm/s", {ctx.layer: ~np.isclose(ctx.rate, r)
+                                           for ctx in contexts}))
+    n_samples = max(len(ctx.data.samples) for ctx in contexts)
+    loso = []
+    for k in range(n_samples):
+        masks = {}
+        for ctx in contexts:
+            samples = ctx.data.samples
+            held = samples[k] if k < len(samples) else None
+            masks[ctx.layer] = ctx.sample != held
+        loso.append((f"sample #{k + 1} of every layer", masks))
+    return {"rate": loro, "sample": loso}
+
+
+def _heldout_rms(contexts, model_of_training, folds):
+    """RMS (N) of held-out predictions per fold kind and per layer."""
+    out = {}
+    for kind, fold_list in folds.items():
+        sq, n = 0.0, 0
+        per_layer = {}
+        for _, masks in fold_list:
+            model = model_of_training(masks)
+            _, fits = _campaign_fit(contexts, model, masks)
+            for ctx in contexts:
+                held = ~masks[ctx.layer]
+                if not held.any() or ctx.layer not in fits:
+                    continue
+                r = fits[ctx.layer][3][held] - ctx.y[held]
+                sq += float(r @ r)
+                n += int(held.sum())
+                a, b = per_layer.get(ctx.layer, (0.0, 0))
+                per_layer[ctx.layer] = (a + float(r @ r), b + int(held.sum()))
+        out[kind] = {"rms_N": math.sqrt(sq / max(n, 1)),
+                     "per_layer": {k: math.sqrt(a / b) for k, (a, b) in per_layer.items()}}
+    return out
+
+
+# ============================================================================ direct check
+def _direct_prediction(ctx: LayerContext, model: Model, mu: float, alpha: float):
+    """Forces at the layer's points from direct FE solves of the full extended model."""
+    out = np.empty(len(ctx.y))
+    infos = ctx.data.cycles
+    for c, info in enumerate(infos):
+        idx = np.flatnonzero(ctx.cycle == c)
+        if not len(idx):
+            continue
+        key = ctx.base_key(alpha, geometry=(info.diameter_mm, info.height_mm))
+        for e, t in zip(model.effects, model.theta):
+            key = dataclasses.replace(key, **e.key_overrides(t, info.rate_mm_per_s))
+            if isinstance(e, SecondOgdenTerm):
+                key = e.material_key(t, key)
+
+        def unit_force(strain, key=key, h=info.height_mm):
+            return ctx.forward.unit_forces(key, np.asarray(strain) * h)
+
+        force_fn = (lambda s, uf=unit_force: mu * uf(s))
+        for e, t in zip(model.effects, model.theta):
+            if type(e).observe is not Effect.observe:
+                prev = force_fn
+
+                def force_fn(s, e=e, t=t, prev=prev):  # noqa: E731 - closure chain
+                    return e.observe(t, s, lambda x: prev(x) / mu, mu, info.test,
+                                     info.height_mm)
+        out[idx] = force_fn(ctx.level[idx])
+    return out
+
+
+# ============================================================================ the workflow
+@dataclasses.dataclass
+class Candidate:
+    """One effect tried in one round."""
+
+    effect: str
+    delta_bic: float
+    rms_N: float
+    parameters: dict
+    plausible: bool
+    reason: str = ""
+    heldout: dict | None = None
+    heldout_improvement: dict | None = None
+    accepted: bool = False
+
+    def to_dict(self) -> dict:
+        out = {"effect": self.effect, "delta_bic": self.delta_bic, "rms_N": self.rms_N,
+               "parameters": self.parameters, "plausible": self.plausible}
+        if self.reason:
+            out["implausible_because"] = self.reason
+        if self.heldout_improvement is not None:
+            out["heldout_improvement"] = self.heldout_improvement
+        out["accepted"] = self.accepted
+        return out
+
+
+@dataclasses.dataclass
+class DiscoveryResult:
+    """Outcome of the workflow (see :meth:`to_dict` for the ``--json`` object)."""
+
+    effect: str
+    accepted: list
+    also_possible: list
+    rounds: list
+    rms_before_N: float
+    rms_after_N: float
+    rms_after_fast_N: float
+    heldout_before: dict
+    heldout_after: dict
+    per_layer: dict
+    base_fits: dict
+    model: Model
+    predictions: dict
+    failed_layers: dict
+    thresholds: dict
+    wall_s: float
+    n_solves: int
+
+    def to_dict(self) -> dict:
+        """The ``calib discover --json`` object (shared/CLI.md) plus details."""
+        candidates = self.rounds[0] if self.rounds else []
+        return {
+            "effect": self.effect,
+            "rms_before_N": self.rms_before_N,
+            "rms_after_N": self.rms_after_N,
+            "candidates": [c.to_dict() for c in sorted(candidates,
+                                                       key=lambda c: c.delta_bic)],
+            "accepted": self.accepted,
+            "also_possible": self.also_possible,
+            "parameters": {e.name: e.report(t) for e, t in zip(self.model.effects,
+                                                              self.model.theta)},
+            "rounds": [[c.to_dict() for c in r] for r in self.rounds],
+            "heldout_rms_before_N": {k: v["rms_N"] for k, v in self.heldout_before.items()},
+            "heldout_rms_after_N": {k: v["rms_N"] for k, v in self.heldout_after.items()},
+            "rms_after_fast_N": self.rms_after_fast_N,
+            "per_layer": self.per_layer,
+            "failed_layers": self.failed_layers,
+            "thresholds": self.thresholds,
+            "wall_s": self.wall_s,
+            "forward_solves": self.n_solves,
+        }
+
+
+def _prepare_job(fit: LayerFit, settings: FitSettings, names: Sequence[str],
+                 alpha_ref: float | None = None):
+    """Work item: the effect grids of one layer (FE solves), returned as plain attributes."""
+    forward = ForwardModel(mesh_scale=settings.mesh_scale)
+    ctx = LayerContext(fit, forward, settings)
+    if alpha_ref is not None:
+        ctx.alpha_ref = alpha_ref
+    before = set(vars(ctx)) - {"alpha_ref"}
+    for name in names:
+        make_effect(name).prepare(ctx)
+    new = {k: v for k, v in vars(ctx).items() if k not in before}
+    return fit.layer, new, forward.n_solves
+
+
+def _prepare(contexts, settings, names, alphas, workers, scheduler, progress) -> int:
+    """Compute the effect grids of every layer in parallel; returns the number of solves."""
+    import concurrent.futures as cf
+
+    from .parallel import executor
+
+    n_solves = 0
+    by_layer = {ctx.layer: ctx for ctx in contexts}
+    with executor(len(contexts), max_workers=workers, scheduler=scheduler) as pool:
+        futures = [pool.submit(_prepare_job, ctx.fit, settings, list(names),
+                               None if alphas is None else alphas[ctx.layer])
+                   for ctx in contexts]
+        bar = None
+        if progress:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(total=len(futures), desc=f"discover: grids of {', '.join(names)}"[:60],
+                       unit="layer")
+        for future in cf.as_completed(futures):
+            layer, attrs, n = future.result()
+            vars(by_layer[layer]).update(attrs)
+            if alphas is not None:
+                by_layer[layer].alpha_ref = alphas[layer]
+            n_solves += n
+            if bar is not None:
+                bar.update(1)
+        if bar is not None:
+            bar.close()
+    return n_solves
+
+
+def discover_campaign(campaign, *, settings: FitSettings | None = None,
+                      effects: Sequence[str] = EFFECTS, workers=None, scheduler=None,
+                      progress: bool = True, log=print, thresholds: dict | None = None,
+                      max_rounds: int = 2, base=None) -> DiscoveryResult:
+    """Run the discrepancy workflow on a campaign (see the module notes).
+
+    Parameters
+    ----------
+    campaign : calib.loaders.Campaign
+    settings : FitSettings, optional
+        Base-fit settings (nu assumed, levels, ...).
+    effects : sequence of str
+        Candidate effects, default all of :data:`EFFECTS`.
+    workers, scheduler
+        Executor of the base fits (:func:`calib.fit.fit_campaign`).
+    thresholds : dict, optional
+        Override :data:`THRESHOLDS`.
+    max_rounds : int
+        How many effects may be added one after the other.
+    base : calib.fit.CampaignFit, optional
+        A base fit already done with these settings.
+    """
+    start = time.perf_counter()
+    settings = settings or FitSettings()
+    thresholds = {**THRESHOLDS, **(thresholds or {})}
+    if base is None:
+        log("discover: base fit (one-term Ogden, bonded, nu assumed)")
+        base = fit_campaign(campaign, settings, max_workers=workers, scheduler=scheduler,
+                            progress=progress)
+    if not base.fits:
+        raise ValueError("no layer could be fitted: " + "; ".join(
+            f"{k}: {v}" for k, v in base.failed.items()))
+    forward = ForwardModel(mesh_scale=settings.mesh_scale)
+    contexts = [LayerContext(base.fits[k], forward, settings) for k in sorted(base.fits)]
+    n_cycles = sum(len(ctx.data.cycles) for ctx in contexts)
+    candidates_all = [make_effect(name) for name in effects]
+
+    grid_solves = _prepare(contexts, settings, effects, None, workers, scheduler, progress)
+    log(f"discover: effect grids ready ({grid_solves} forward solves)")
+
+    accepted = Model([], [])
+    chi2_current = _campaign_fit(contexts, accepted)[0]
+    rounds = []
+    also_possible = []
+    folds = _folds(contexts)
+    heldout_base = _heldout_rms(contexts, lambda masks: Model([], []), folds)
+    heldout_current = heldout_base
+    for round_no in range(max_rounds):
+        remaining = [e for e in candidates_all
+                     if e.name not in {a.name for a in accepted.effects}]
+        if not remaining:
+            break
+        tried = []
+        for effect in remaining:
+            model, chi2 = _optimise(contexts, accepted, effect)
+            k = len(effect.bounds)
+            delta_bic = (chi2 - chi2_current) + k * math.log(n_cycles)
+            _, fits = _campaign_fit(contexts, model)
+            rms = _rms(contexts, fits)
+            ok, reason = effect.plausible(model.theta[-1])
+            tried.append((Candidate(effect.name, float(delta_bic), rms,
+                                    effect.report(model.theta[-1]), ok, reason), model))
+            log(f"discover round {round_no + 1}: {effect.name:<20} dBIC {delta_bic:10.1f} "
+                f"rms {1e3 * rms:7.2f} mN {effect.report(model.theta[-1])}"
+                + ("" if ok else f" (implausible: {reason})"))
+        tried.sort(key=lambda cm: cm[0].delta_bic)
+        # the forward grids were computed at the base fit's alpha; redo them at the alpha of
+        # each leading candidate's own fit and polish its parameters there
+        for i, (cand, model) in enumerate(tried[:TOP_CANDIDATES]):
+            effect = model.effects[-1]
+            if cand.delta_bic > thresholds["delta_bic"] or type(effect).prepare is Effect.prepare:
+                continue
+            _, fits = _campaign_fit(contexts, model)
+            alphas = {layer: fit[2] for layer, fit in fits.items()}
+            grid_solves += _prepare(contexts, settings, [effect.name], alphas, workers,
+                                    scheduler, False)
+            model, chi2 = _optimise(contexts, accepted, effect, start=model.theta[-1])
+            _, fits = _campaign_fit(contexts, model)
+            ok, reason = effect.plausible(model.theta[-1])
+            tried[i] = (Candidate(effect.name, float(chi2 - chi2_current
+                                                     + len(effect.bounds) * math.log(n_cycles)),
+                                  _rms(contexts, fits), effect.report(model.theta[-1]), ok,
+                                  reason), model)
+            log(f"discover round {round_no + 1}: {effect.name:<20} refined at the fitted alpha:"
+                f" dBIC {tried[i][0].delta_bic:.1f} {tried[i][0].parameters}")
+        tried.sort(key=lambda cm: cm[0].delta_bic)
+        passing = []
+        for cand, model in tried[:TOP_CANDIDATES]:
+            if cand.delta_bic > thresholds["delta_bic"] or not cand.plausible:
+                continue
+            effect = model.effects[-1]
+
+            def model_of_training(masks, effect=effect, model=model):
+                return _optimise(contexts, accepted, effect, masks, start=model.theta[-1],
+                                 maxfev=60)[0]
+
+            held = _heldout_rms(contexts, model_of_training, folds)
+            cand.heldout = held
+            cand.heldout_improvement = {
+                kind: 1.0 - held[kind]["rms_N"] / heldout_current[kind]["rms_N"]
+                for kind in held}
+            log(f"discover round {round_no + 1}: {cand.effect:<20} held-out RMS "
+                + ", ".join(f"{kind} {1e3 * heldout_current[kind]['rms_N']:.1f} -> "
+                            f"{1e3 * held[kind]['rms_N']:.1f} mN" for kind in held))
+            if all(v >= thresholds["heldout_improvement"]
+                   for v in cand.heldout_improvement.values()):
+                passing.append((cand, model))
+        rounds.append([c for c, _ in tried])
+        if not passing:
+            break
+        best, best_model = passing[0]
+        best.accepted = True
+        for cand, _ in passing[1:]:
+            if cand.delta_bic - best.delta_bic < max(10.0, 0.1 * abs(best.delta_bic)):
+                also_possible.append(cand.effect)
+        accepted = best_model
+        # what the effect explains is no longer scatter: new noise model, polished parameters
+        _refresh_noise(contexts, accepted)
+        accepted = _optimise(contexts, Model(accepted.effects[:-1], accepted.theta[:-1]),
+                             accepted.effects[-1], start=accepted.theta[-1])[0]
+        chi2_current = _campaign_fit(contexts, accepted)[0]
+        heldout_current = best.heldout
+        log(f"discover: accepted {best.effect} {best.parameters}")
+
+    # the gap before and after, with direct FE solves of the accepted model
+    _, fits_after = _campaign_fit(contexts, accepted)
+    per_layer = {}
+    predictions = {}
+    sq_before = sq_after = sq_fast = 0.0
+    n = 0
+    for ctx in contexts:
+        before = ctx.fit.predicted[ctx.data.valid]
+        chi2, mu, alpha, fast = fits_after[ctx.layer]
+        after = (_direct_prediction(ctx, accepted, mu, alpha) if accepted.effects else before)
+        predictions[ctx.layer] = {"before": before, "after": after, "fast": fast}
+        rb = float(np.sqrt(np.mean((before - ctx.y) ** 2)))
+        ra = float(np.sqrt(np.mean((after - ctx.y) ** 2)))
+        per_layer[ctx.layer] = {
+            "mu_Pa_before": ctx.fit.mu_Pa, "alpha_before": ctx.fit.alpha,
+            "mu_Pa_after": mu, "alpha_after": alpha, "rms_before_N": rb, "rms_after_N": ra,
+            "heldout_rms_before_N": {k: v["per_layer"].get(ctx.layer)
+                                     for k, v in heldout_base.items()},
+            "heldout_rms_after_N": {k: v["per_layer"].get(ctx.layer)
+                                    for k, v in heldout_current.items()},
+        }
+        sq_before += float(np.sum((before - ctx.y) ** 2))
+        sq_after += float(np.sum((after - ctx.y) ** 2))
+        sq_fast += float(np.sum((fast - ctx.y) ** 2))
+        n += len(ctx.y)
+    effect = "none" if not accepted.effects else accepted.effects[0].name
+    return DiscoveryResult(
+        effect=effect, accepted=[e.name for e in accepted.effects], also_possible=also_possible,
+        rounds=rounds, rms_before_N=math.sqrt(sq_before / n), rms_after_N=math.sqrt(sq_after / n),
+        rms_after_fast_N=math.sqrt(sq_fast / n), heldout_before=heldout_base,
+        heldout_after=heldout_current, per_layer=per_layer, base_fits=base.fits,
+        model=accepted, predictions=predictions, failed_layers=dict(base.failed),
+        thresholds=thresholds, wall_s=time.perf_counter() - start,
+        n_solves=(forward.n_solves + grid_solves
+                  + sum(f.n_solves for f in base.fits.values())))
+
+
+def _rms(contexts, fits) -> float:
+    sq, n = 0.0, 0
+    for ctx in contexts:
+        r = fits[ctx.layer][3] - ctx.y
+        sq += float(r @ r)
+        n += len(r)
+    return math.sqrt(sq / n)
+
+
+# ============================================================================ report
+def write_discovery_report(result: DiscoveryResult, campaign, out_dir) -> dict:
+    """Write ``discover.json``, ``discover.md`` and the before/after plots into ``out_dir``."""
+    import json
+    from pathlib import Path
+
+    from ._io import write_text
+    from .report import save_figure
+
+    out = Path(out_dir)
+    written = {
+        "json": str(write_text(out / "discover.json",
+                               json.dumps(result.to_dict(), indent=1, default=float))),
+        "markdown": str(write_text(out / "discover.md", discovery_markdown(result))),
+        "residuals": str(save_figure(plot_residual_structure(result), out / "residuals.png")),
+        "curves": str(save_figure(plot_before_after(result), out / "curves.png")),
+    }
+    return written
+
+
+def discovery_markdown(result: DiscoveryResult) -> str:
+    """Readable summary of the workflow."""
+    lines = ["# Discrepancy workflow", "",
+             f"Missing effect: **{result.effect}**"
+             + (f" (equally possible: {', '.join(result.also_possible)})"
+                if result.also_possible else ""), ""]
+    if result.model.effects:
+        for e, t in zip(result.model.effects, result.model.theta):
+            params = ", ".join(f"{k} = {v:.4g}" for k, v in e.report(t).items())
+            lines.append(f"- {e.name}: {params}")
+        lines.append("")
+    lines += [
+        f"RMS gap, all cycles: {1e3 * result.rms_before_N:.2f} mN before, "
+        f"{1e3 * result.rms_after_N:.2f} mN after (direct FE solves; fast model "
+        f"{1e3 * result.rms_after_fast_N:.2f} mN).",
+        "",
+        "Held-out RMS (fit on the rest, predict the held-out part):",
+        "",
+    ]
+    for kind in result.heldout_before:
+        lines.append(f"- leave one {kind} out: {1e3 * result.heldout_before[kind]['rms_N']:.2f}"
+                     f" -> {1e3 * result.heldout_after[kind]['rms_N']:.2f} mN")
+    lines += ["", "| layer | rms before (mN) | rms after (mN) | mu before | mu after | "
+              "alpha before | alpha after |", "| --- | --- | --- | --- | --- | --- | --- |"]
+    for layer, d in sorted(result.per_layer.items()):
+        lines.append(f"| {layer} | {1e3 * d['rms_before_N']:.2f} | {1e3 * d['rms_after_N']:.2f}"
+                     f" | {d['mu_Pa_before']:.0f} | {d['mu_Pa_after']:.0f} | "
+                     f"{d['alpha_before']:.3f} | {d['alpha_after']:.3f} |")
+    for i, candidates in enumerate(result.rounds, start=1):
+        lines += ["", f"## Round {i} candidates", "",
+                  "| effect | dBIC | rms (mN) | parameters | plausible | held-out gain |",
+                  "| --- | --- | --- | --- | --- | --- |"]
+        for c in sorted(candidates, key=lambda c: c.delta_bic):
+            params = ", ".join(f"{k} = {v:.4g}" for k, v in c.parameters.items())
+            gain = ("" if c.heldout_improvement is None else ", ".join(
+                f"{k} {100 * v:+.1f} %" for k, v in c.heldout_improvement.items()))
+            lines.append(f"| {c.effect}{' (accepted)' if c.accepted else ''} | "
+                         f"{c.delta_bic:.1f} | {1e3 * c.rms_N:.2f} | {params} | "
+                         f"{'yes' if c.plausible else 'no: ' + c.reason} | {gain} |")
+    lines += ["", f"Thresholds: {result.thresholds}; forward solves {result.n_solves}; "
+              f"wall time {result.wall_s:.0f} s."]
+    return "\n".join(lines) + "\n"
+
+
+def plot_residual_structure(result: DiscoveryResult):
+    """Relative residuals against strain (coloured by rate) and their cycle means against
+    test order, before and after adding the named effect."""
+    from .report import RATE_COLOURS, _figure, _rate_colour
+
+    fig = _figure(10.0, 6.5)
+    axes = fig.subplots(2, 2)
+    for col, when in enumerate(("before", "after")):
+        ax_s, ax_t = axes[0, col], axes[1, col]
+        for layer, pred in result.predictions.items():
+            fit = result.base_fits[layer]
+            valid = fit.data.valid
+            y = fit.data.force[valid]
+            q = 100 * (y / pred[when] - 1)
+            cyc = np.repeat(np.arange(len(fit.data.cycles)), valid.sum(axis=1))
+            lv = 100 * np.broadcast_to(fit.data.levels, valid.shape)[valid]
+            for c, info in enumerate(fit.data.cycles):
+                sel = cyc == c
+                ax_s.plot(lv[sel], q[sel], "-", color=_rate_colour(info.rate_mm_per_s),
+                          lw=0.7, alpha=0.7)
+                ax_t.plot(info.test + 0.08 * (hash(layer) % 5 - 2), q[sel].mean(), "o",
+                          color=_rate_colour(info.rate_mm_per_s), ms=4)
+        for ax in (ax_s, ax_t):
+            ax.axhline(0, color="k", lw=0.8)
+            ax.grid(alpha=0.3)
+        ax_s.set_title(f"{when}: {'base model' if when == 'before' else result.effect}")
+        ax_s.set_xlabel("strain level (%)")
+        ax_s.set_ylabel("measured / simulated - 1 (%)")
+        ax_t.set_xlabel("test order of the sample")
+        ax_t.set_ylabel("cycle mean residual (%)")
+    for rate, colour in RATE_COLOURS.items():
+        axes[0, 0].plot([], [], color=colour, label=f"{rate:g} mm/s")
+    axes[0, 0].legend(fontsize=7, frameon=False)
+    return fig
+
+
+def plot_before_after(result: DiscoveryResult):
+    """Measured levels with the base and the extended predictions, one panel per layer."""
+    from .report import _figure, _rate_colour
+
+    layers = sorted(result.predictions)
+    cols = min(3, len(layers))
+    rows = int(math.ceil(len(layers) / cols))
+    fig = _figure(4.2 * cols, 3.3 * rows)
+    axes = np.atleast_1d(fig.subplots(rows, cols)).ravel()
+    for ax, layer in zip(axes, layers):
+        fit = result.base_fits[layer]
+        valid = fit.data.valid
+        pred = result.predictions[layer]
+        cyc = np.repeat(np.arange(len(fit.data.cycles)), valid.sum(axis=1))
+        travel = fit.data.travel_mm[valid]
+        y = fit.data.force[valid]
+        for c, info in enumerate(fit.data.cycles):
+            sel = cyc == c
+            colour = _rate_colour(info.rate_mm_per_s)
+            ax.plot(travel[sel], y[sel], "o", color=colour, ms=2.5)
+            ax.plot(travel[sel], pred["before"][sel], ":", color=colour, lw=0.9)
+            ax.plot(travel[sel], pred["after"][sel], "-", color=colour, lw=0.9)
+        ax.set_title(f"layer {layer}", fontsize=9)
+        ax.set_xlabel("travel (mm)", fontsize=8)
+        ax.set_ylabel("force (N)", fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[0].plot([], [], "k:", label="base model")
+    axes[0].plot([], [], "k-", label=f"with {result.effect}")
+    axes[0].plot([], [], "ko", ms=3, label="measured")
+    axes[0].legend(fontsize=7, frameon=False)
+    for ax in axes[len(layers):]:
+        ax.set_visible(False)
+    return fig
