@@ -87,6 +87,11 @@ def _add_simulate(sub) -> None:
     p.add_argument("--friction", type=float, default=0.0,
                    help="Coulomb coefficient (with --platen coulomb)")
     p.add_argument("--out", metavar="FILE.csv", help="write the curve as CSV")
+    p.add_argument("--vtk", metavar="FILE.vtu",
+                   help="write the deformed mesh with displacement and Cauchy / von Mises "
+                   "stress fields (.vtu or .vtk, ParaView opens both)")
+    p.add_argument("--png", metavar="FILE.png",
+                   help="draw the deformed section (axial stress) and the force curve")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.set_defaults(handler=_run_simulate)
 
@@ -105,14 +110,32 @@ def _run_simulate(args) -> int:
                                platen=args.platen, friction=args.friction)
     except ValueError as exc:
         raise UsageError(str(exc)) from exc
+    for option, path, suffixes in (("--vtk", args.vtk, (".vtu", ".vtk")),
+                                   ("--png", args.png, (".png",))):
+        if path is not None and not path.lower().endswith(suffixes):
+            raise UsageError(f"{option} {path}: the file name must end in "
+                             f"{' or '.join(suffixes)}")
+    mesh = None
     if args.mesh == "hex":
-        raise WorkFailed("the hexahedral mesh path is not available yet; use --mesh axisym")
+        from solver import hex_cylinder
+
+        mesh = hex_cylinder(args.diameter_mm, args.height_mm)
+        log(f"hexahedral mesh: {mesh.n_cells} elements, {mesh.n_nodes} nodes")
     start = time.perf_counter()
     try:
-        result = simulate(material, test)
+        result = simulate(material, test, mesh)
     except SolverInstability as exc:
         raise WorkFailed(str(exc)) from exc
     wall = time.perf_counter() - start
+    try:
+        if args.vtk:
+            result.write_vtk(args.vtk)
+            log(f"wrote the deformed mesh to {args.vtk}")
+        if args.png:
+            result.write_png(args.png)
+            log(f"wrote the picture to {args.png}")
+    except OSError as exc:
+        raise WorkFailed(f"cannot write the output: {exc}") from exc
     if args.out:
         table = np.column_stack([result.time_s, result.displacement_mm, result.force_N])
         with atomic_write(args.out) as fh:
@@ -125,6 +148,7 @@ def _run_simulate(args) -> int:
             "time_s": result.time_s, "displacement_mm": result.displacement_mm,
             "force_N": result.force_N, "wall_s": wall, "n_steps": result.n_steps,
             "kinetic_ratio": result.kinetic_ratio, "hourglass_ratio": result.hourglass_ratio,
+            "mesh": args.mesh, "n_cells": result.mesh.n_cells,
         })
     elif not args.out:
         print(f"{'displacement_mm':>16} {'force_N':>12}")

@@ -4,8 +4,10 @@ Public surface::
 
     from solver import Ogden, NeoHookean, Prony          # materials (Abaqus/Miller-Chinzei Ogden)
     from solver import CompressionTest                     # what the rig does
-    from solver import Mesh, axisymmetric_cylinder         # meshes
+    from solver import Mesh, axisymmetric_cylinder         # meshes: axisymmetric quads,
+    from solver import hex_cylinder, hex_block             # 3D hexahedra (O-grid, block)
     from solver import simulate, SimulationResult, SolverInstability
+    from solver import write_vtk, write_png                # files to look at (also methods)
 
 ``solver`` knows nothing of rig logs or fitting; :mod:`calib` builds on it.
 """
@@ -13,7 +15,8 @@ Public surface::
 from .explicit import DEFAULT_QUASI_STATIC_RATIO, SimulationResult, SolverInstability, simulate
 from .loading import PLATENS, CompressionTest
 from .materials import NeoHookean, Ogden, Prony, bulk_modulus
-from .mesh import Mesh, axisymmetric_cylinder
+from .mesh import Mesh, axisymmetric_cylinder, hex_block, hex_cylinder
+from .output import write_png, write_vtk
 
 __all__ = [
     "CompressionTest",
@@ -27,5 +30,9 @@ __all__ = [
     "SolverInstability",
     "axisymmetric_cylinder",
     "bulk_modulus",
+    "hex_block",
+    "hex_cylinder",
     "simulate",
+    "write_png",
+    "write_vtk",
 ]

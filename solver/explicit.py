@@ -77,6 +77,7 @@ from .stiffness import (
     assemble,
     element_max_frequency_sq,
     element_stiffness,
+    factorize,
     influence_field,
     lowest_mode,
 )
@@ -588,8 +589,10 @@ def simulate(
     Ke_lt = element_stiffness(ops, shear_lt, bulk, k_hg_unit)
     K_lt = assemble(mesh.cells, Ke_lt, n_nodes, dim)
     free = ~static.ravel()
-    w = influence_field(K_lt, free, prescribed.ravel())
-    omega2_1 = lowest_mode(K_lt, np.repeat(node_mass_unit, dim), free, load=w)
+    lu = factorize(K_lt, free)
+    w = influence_field(K_lt, free, prescribed.ravel(), lu=lu)
+    omega2_1 = lowest_mode(K_lt, np.repeat(node_mass_unit, dim), free, load=w, lu=lu)
+    del lu
     w = w.reshape(n_nodes, dim)
 
     T = test.ramp_time_s

@@ -302,9 +302,9 @@ def _materials_by_height(points, cells, layer_heights_mm) -> np.ndarray:
 def hex_cylinder(
     diameter_mm: float = 38.0,
     height_mm: float = 24.0,
-    n_core: int = 8,
-    n_ring: int = 7,
-    n_axial: int = 20,
+    n_core: int = 6,
+    n_ring: int = 5,
+    n_axial: int = 14,
     radial_ratio: float = 2.5,
     axial_ratio: float = 3.0,
     layer_heights_mm: tuple[float, ...] | None = None,
@@ -320,6 +320,10 @@ def hex_cylinder(
     towards the outer surface and the axial layers towards both faces (the bonded rims,
     where the strain concentrates); the core's element size matches the ring's first row.
     The section is extruded along z through ``n_axial`` element layers.
+
+    The default (2184 hexahedra) puts the bonded 30 % force of the 38 x 24 mm sample within
+    about 0.5 % of the converged value, like the axisymmetric default mesh; 8, 7, 20 (5760
+    hexahedra, the thesis's size) within 0.4 % (see tests/test_hex_convergence.py).
 
     Parameters
     ----------
