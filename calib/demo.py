@@ -101,7 +101,7 @@ def run_demo(out_dir, *, workers=None, scheduler=None, progress=True, log=print,
 
         t0 = time.perf_counter()
         discovery = discover_campaign(campaign, workers=workers, scheduler=scheduler,
-                                      progress=progress, log=log)
+                                      progress=progress, log=log, base=fits)
         write_discovery_report(discovery, campaign, out / "discover")
         timings["discover_s"] = time.perf_counter() - t0
 

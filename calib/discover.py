@@ -83,6 +83,8 @@ THRESHOLDS = {
 }
 #: Candidates checked on held-out folds per round.
 TOP_CANDIDATES = 3
+#: How far (below, above) the base fit's alpha the refits may move alpha.
+ALPHA_WINDOW = (2.0, 2.5)
 
 
 # ============================================================================ layer context
@@ -115,6 +117,11 @@ class LayerContext:
         self.rates = sorted({round(r, 6) for r in self.rate})
         #: alpha at which the effect grids are computed (the base fit's, then refined)
         self.alpha_ref = fit.alpha
+        #: alpha range of the refits: wide enough for an effect to shift alpha, narrow enough
+        #: that its surrogate nodes are solved once, in parallel, with the effect grids
+        lo, hi = settings.alpha_bounds
+        self.alpha_window = (max(lo, fit.alpha - ALPHA_WINDOW[0]),
+                             min(hi, fit.alpha + ALPHA_WINDOW[1]))
         self._w: dict[bytes, np.ndarray] = {}
 
     def whitener(self, mask: np.ndarray) -> np.ndarray:
@@ -495,44 +502,63 @@ class Model:
 
 
 def _layer_refit(ctx: LayerContext, model: Model, mask: np.ndarray, alpha0: float,
-                 mu0: float | None = None, iterations: int = 6):
+                 mu0: float | None = None, iterations: int = 8):
     """Best (mu, alpha) of one layer on the masked points with the model's effects fixed.
 
     Gauss-Newton in alpha with mu eliminated: with U(alpha) linearised about the current alpha,
     the model mu U + (mu dalpha) U' is linear in (mu, mu dalpha), a two-column weighted least
-    squares. Converges in a few iterations from the previous optimum.
+    squares; it converges in a few iterations from a nearby start (the previous optimum). If it
+    does not, a bracketing search over the alpha grid takes over, so the result does not depend
+    on the start.
 
     Returns (chi2, mu, alpha, prediction at every point of the layer).
     """
     W = ctx.whitener(mask)
     y = ctx.y[mask]
-    lo, hi = ctx.unit.settings.alpha_bounds
+    Wy = W @ y
+    lo, hi = ctx.alpha_window
     static = not any(e.uses_alpha or e.uses_mu for e in model.effects)
     mu = ctx.fit.mu_Pa if mu0 is None else mu0
+    alpha0 = min(hi, max(lo, alpha0))
     factor = np.exp(model.modification(ctx, mu, alpha0)) if static else None
+
+    def evaluate(alpha, mu):
+        f = factor if static else np.exp(model.modification(ctx, mu, alpha))
+        U = ctx.unit(alpha) * f
+        mu = _varpro_mu(U[mask], y, W)
+        r = W @ (mu * U[mask]) - Wy
+        return float(r @ r), mu, U
+
     alpha = alpha0
-    Wy = W @ y
+    converged = False
     for _ in range(iterations):
-        if not static:
-            factor = np.exp(model.modification(ctx, mu, alpha))
-        U = ctx.unit(alpha) * factor
-        dU = ctx.unit.derivative(alpha) * factor
+        f = factor if static else np.exp(model.modification(ctx, mu, alpha))
+        U = ctx.unit(alpha) * f
+        dU = ctx.unit.derivative(alpha) * f
         A = W @ np.column_stack([U[mask], dU[mask]])
         coef, *_ = np.linalg.lstsq(A, Wy, rcond=None)
         mu = float(coef[0])
-        step = float(coef[1] / coef[0]) if coef[0] != 0 else 0.0
+        step = float(coef[1] / coef[0]) if coef[0] > 0 else math.inf
+        if not math.isfinite(step):
+            break
         step = max(-0.5, min(0.5, step))  # stay within the surrogate's trust region
         alpha_new = min(hi, max(lo, alpha + step))
         if abs(alpha_new - alpha) < 1e-5:
-            alpha = alpha_new
+            alpha, converged = alpha_new, True
             break
         alpha = alpha_new
-    if not static:
-        factor = np.exp(model.modification(ctx, mu, alpha))
-    U = ctx.unit(alpha) * factor
-    mu = _varpro_mu(U[mask], y, W)
-    r = W @ (mu * U[mask] - y)
-    return float(r @ r), mu, alpha, mu * U
+    if not converged or mu <= 0:
+        state = {"mu": ctx.fit.mu_Pa}
+
+        def cost(a):
+            c, state["mu"], _ = evaluate(a, state["mu"])
+            return c
+
+        res = optimize.minimize_scalar(cost, bounds=(lo, hi), method="bounded",
+                                       options={"xatol": 1e-4})
+        alpha, mu = float(res.x), state["mu"]
+    chi2, mu, U = evaluate(alpha, mu)
+    return chi2, mu, alpha, mu * U
 
 
 def _campaign_fit(contexts, model: Model, masks=None, warm=None):
@@ -794,6 +820,12 @@ def _prepare_job(fit: LayerFit, settings: FitSettings, names: Sequence[str],
     for name in names:
         make_effect(name).prepare(ctx)
     new = {k: v for k, v in vars(ctx).items() if k not in before}
+    if alpha_ref is None:  # first call: the alpha surrogate's nodes across the refit window
+        step = settings.alpha_step
+        lo, hi = ctx.alpha_window
+        for k in range(max(1, int(lo / step) - 1), int(hi / step) + 3):
+            ctx.unit.node(k)
+        new["alpha_nodes"] = dict(ctx.unit.nodes)
     return fit.layer, new, forward.n_solves
 
 
@@ -817,6 +849,7 @@ def _prepare(contexts, settings, names, alphas, workers, scheduler, progress) ->
                        unit="layer")
         for future in cf.as_completed(futures):
             layer, attrs, n = future.result()
+            by_layer[layer].unit.nodes.update(attrs.pop("alpha_nodes", {}))
             vars(by_layer[layer]).update(attrs)
             if alphas is not None:
                 by_layer[layer].alpha_ref = alphas[layer]

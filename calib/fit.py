@@ -397,6 +397,7 @@ class OgdenUnitResponse:
             cycles = [i for i, x in enumerate(geometry) if x == g]
             self.groups[g] = np.flatnonzero(np.isin(self.cycle_of_point, cycles))
         self.nodes: dict[int, np.ndarray] = {}
+        self._splines: dict[int, interpolate.CubicSpline] = {}
 
     def key(self, alpha: float, geometry) -> CurveKey:
         """The forward solve of one geometry at ``alpha``."""
@@ -419,9 +420,13 @@ class OgdenUnitResponse:
     def _local(self, alpha: float):
         step = self.settings.alpha_step
         first = max(1, int(math.floor(alpha / step)) - 1)
-        ks = np.arange(first, first + 4)
-        return interpolate.CubicSpline(ks * step, np.array([self.node(int(k)) for k in ks]),
-                                       axis=0)
+        spline = self._splines.get(first)
+        if spline is None:
+            ks = np.arange(first, first + 4)
+            spline = interpolate.CubicSpline(ks * step, np.array([self.node(int(k)) for k in ks]),
+                                             axis=0)
+            self._splines[first] = spline
+        return spline
 
     def __call__(self, alpha: float) -> np.ndarray:
         """Unit forces interpolated at ``alpha``, shape (n_points,)."""
