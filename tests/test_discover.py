@@ -1,0 +1,125 @@
+"""The discrepancy workflow: effect models, naming rules, and recovery of hidden effects."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from calib.discover import (
+    EFFECTS,
+    THRESHOLDS,
+    ContactOffset,
+    MachineCompliance,
+    Preconditioning,
+    SecondOgdenTerm,
+    _compliant_strain,
+    discover_campaign,
+    make_effect,
+)
+from calib.loaders import Campaign
+
+from .test_fit import RATES, _cycle
+
+
+def test_every_effect_of_the_contract_exists_and_reduces_to_the_base_model():
+    assert set(EFFECTS) == {"rate_dependence", "platen_slip", "contact_offset",
+                            "machine_compliance", "compressibility", "second_ogden_term",
+                            "preconditioning"}
+    for name in EFFECTS:
+        effect = make_effect(name)
+        assert effect.name == name
+        assert len(effect.null) == len(effect.bounds) == len(effect.report(effect.null))
+        for value, (lo, hi) in zip(effect.null, effect.bounds):
+            assert lo <= value <= hi
+        ok, reason = effect.plausible(effect.null)
+        assert not ok and reason, f"{name}: the null model must not count as a finding"
+    with pytest.raises(ValueError, match="unknown effect"):
+        make_effect("gravity")
+
+
+def test_observation_models_against_their_definitions():
+    def unit(s):  # a stiffening unit curve, N per Pa
+        return 1e-3 * (np.asarray(s) + 8.0 * np.asarray(s) ** 3)
+
+    strain = np.linspace(0.02, 0.3, 15)
+    mu, h = 2000.0, 24.0
+    # compliance: logged travel = sample compression + c F
+    c = 0.05
+    force = MachineCompliance().observe((c,), strain, unit, mu, 1, h)
+    sample = _compliant_strain(strain, unit, mu, c, h)
+    np.testing.assert_allclose(sample * h + c * force, strain * h, atol=1e-8)
+    np.testing.assert_allclose(force, mu * unit(sample))
+    # contact offset: the face is met 0.3 mm after the detected contact
+    shifted = ContactOffset().observe((0.3,), strain, unit, mu, 1, h)
+    np.testing.assert_allclose(shifted, mu * unit(strain - 0.3 / h))
+    # preconditioning: the k-th test is softer by (1 - s)^(k-1)
+    p = Preconditioning()
+    assert p.observe((0.1,), 0.2, unit, mu, 3, h) == pytest.approx(0.81 * mu * unit(0.2))
+
+
+def test_second_term_keeps_the_small_strain_modulus():
+    effect = SecondOgdenTerm()
+
+    class Ctx:
+        level = np.array([1e-6, 0.1, 0.3])
+
+    m = effect.modification((-3.0, -0.3), Ctx, 1000.0, 6.0)
+    assert abs(m[0]) < 1e-5 and abs(m[2]) > 0.01
+    assert effect.feasible((-3.0, -0.3), 6.0) and not effect.feasible((-3.0, 0.3), 6.0)
+
+
+def _preconditioned_layer(layer, mu, alpha, softening, geometries, rng):
+    cycles = []
+    for s, (d, h) in enumerate(geometries, start=1):
+        order = rng.permutation(3)
+        for t, k in enumerate(order, start=1):
+            c = _cycle(layer, f"{layer}{s}", t, RATES[k], mu * (1 - softening) ** (t - 1),
+                       alpha, d, h, noise_N=0.002, rng=rng)
+            cycles.append(c)
+    return cycles
+
+
+@pytest.mark.slow
+def test_hidden_preconditioning_is_named_and_recovered():
+    """Cycles straight from the solver with a known softening between tests of a sample."""
+    rng = np.random.default_rng(5)
+    cycles = (_preconditioned_layer("A", 1875.0, 4.9, 0.08, [(38.0, 24.0), (37.8, 24.1),
+                                                               (38.2, 23.9)], rng)
+              + _preconditioned_layer("D", 3000.0, 6.0, 0.08, [(38.0, 24.0), (38.1, 23.8),
+                                                                 (37.9, 24.2)], rng))
+    result = discover_campaign(Campaign(root="mem", cycles=tuple(cycles)), progress=False,
+                               log=lambda *a: None, workers=1)
+    assert result.effect == "preconditioning"
+    params = result.to_dict()["parameters"]["preconditioning"]
+    assert params["softening"] == pytest.approx(0.08, abs=0.015)
+    for kind in result.heldout_before:
+        assert result.heldout_after[kind]["rms_N"] < 0.5 * result.heldout_before[kind]["rms_N"]
+    assert result.rms_after_N < 0.5 * result.rms_before_N
+    report = json.loads(json.dumps(result.to_dict(), default=float))
+    assert report["candidates"][0]["effect"] == "preconditioning"
+    assert {"effect", "delta_bic", "rms_N", "parameters"} <= set(report["candidates"][0])
+
+
+@pytest.mark.slow
+def test_nothing_is_named_on_clean_data_from_the_fitting_model():
+    rng = np.random.default_rng(8)
+    cycles = (_preconditioned_layer("B", 1875.0, 6.5, 0.0, [(38.0, 24.0), (37.8, 24.1),
+                                                              (38.2, 23.9)], rng)
+              + _preconditioned_layer("F", 3100.0, 5.5, 0.0, [(38.0, 24.0), (38.1, 23.8),
+                                                                (37.9, 24.2)], rng))
+    result = discover_campaign(Campaign(root="mem", cycles=tuple(cycles)), progress=False,
+                               log=lambda *a: None, workers=1)
+    assert result.effect == "none"
+    assert result.rms_after_N == result.rms_before_N
+    assert math.isfinite(THRESHOLDS["delta_bic"])
+
+
+def test_discover_cli_usage_errors(tmp_path, capsys):
+    from calib.cli import main
+
+    assert main(["discover", str(tmp_path / "nothing"), "--out", str(tmp_path / "o")]) == 2
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["discover", str(empty), "--out", str(tmp_path / "o")]) == 2
+    assert "no readable cycle" in capsys.readouterr().err
