@@ -98,6 +98,9 @@ class LayerContext:
         self.data = fit.data
         self.unit = OgdenUnitResponse(forward, fit.data, settings)
         self.unit.nodes.update(fit.alpha_nodes)
+        self.unit.mesh_ratio = fit.mesh_ratio
+        level = np.broadcast_to(fit.data.levels, fit.data.valid.shape)[fit.data.valid]
+        self.unit.correction = np.interp(level, fit.data.levels, fit.mesh_ratio)
         self.forward = forward
         valid = fit.data.valid
         cyc = self.unit.cycle_of_point
@@ -722,7 +725,9 @@ def _direct_prediction(ctx: LayerContext, model: Model, mu: float, alpha: float)
                 key = e.material_key(t, key)
 
         def unit_force(strain, key=key, h=info.height_mm):
-            return ctx.forward.unit_forces(key, np.asarray(strain) * h)
+            strain = np.asarray(strain)
+            ratio = np.interp(strain, ctx.data.levels, ctx.unit.mesh_ratio)
+            return ctx.forward.unit_forces(key, strain * h) * ratio
 
         force_fn = (lambda s, uf=unit_force: mu * uf(s))
         for e, t in zip(model.effects, model.theta):

@@ -120,6 +120,10 @@ class FitSettings:
         Residuals in newtons, or as fractions of the measured force.
     mesh_scale : float
         Mesh density relative to the solver's default mesh.
+    mesh_correction : float or None
+        Mesh scale of the discretisation correction: the unit responses are multiplied by the
+        ratio of a solve on this finer mesh to one on the fitting mesh, at the layer's median
+        geometry and first-fit alpha (one extra solve per layer). ``None`` switches it off.
     alpha_step : float
         Node spacing of the alpha surrogate.
     alpha_bounds : tuple of float
@@ -133,6 +137,7 @@ class FitSettings:
     platen: str = "bonded"
     residual: str = "absolute"
     mesh_scale: float = 1.0
+    mesh_correction: float | None = 2.0
     alpha_step: float = 0.5
     alpha_bounds: tuple[float, float] = (1.0, 25.0)
     profile: bool = True
@@ -190,13 +195,17 @@ class ForwardModel:
         self.mesh_scale = mesh_scale
         self.strain_max = strain_max
         self.n_out = n_out
-        self._cache: dict[CurveKey, interpolate.CubicSpline] = {}
+        self._cache: dict[tuple, interpolate.CubicSpline] = {}
         self.n_solves = 0
         self.solve_s = 0.0
 
-    def curve(self, key: CurveKey) -> interpolate.CubicSpline:
-        """Spline of the unit force (N/Pa) against travel (mm) of one solve."""
-        spline = self._cache.get(key)
+    def curve(self, key: CurveKey, mesh_scale: float | None = None) -> interpolate.CubicSpline:
+        """Spline of the unit force (N/Pa) against travel (mm) of one solve.
+
+        ``mesh_scale`` overrides the model's mesh density for this solve.
+        """
+        scale = self.mesh_scale if mesh_scale is None else mesh_scale
+        spline = self._cache.get((key, scale))
         if spline is None:
             material = Ogden(mu_Pa=key.fractions, alpha=key.alpha, nu=key.nu,
                              prony=Prony(g=key.g, tau_s=key.tau_s) if key.g else None)
@@ -205,13 +214,13 @@ class ForwardModel:
                 rate_mm_per_s=key.rate_mm_per_s or 1.0, platen=key.platen,
                 friction=key.friction, ramp="constant" if key.viscoelastic else "345")
             mesh = axisymmetric_cylinder(key.diameter_mm, key.height_mm,
-                                         round(14 * self.mesh_scale), round(18 * self.mesh_scale))
+                                         round(14 * scale), round(18 * scale))
             start = time.perf_counter()
             result = simulate(material, test, mesh, n_out=self.n_out)
             self.solve_s += time.perf_counter() - start
             self.n_solves += 1
             spline = interpolate.CubicSpline(result.displacement_mm, result.force_N)
-            self._cache[key] = spline
+            self._cache[(key, scale)] = spline
         return spline
 
     def unit_forces(self, key: CurveKey, travel_mm) -> np.ndarray:
@@ -398,23 +407,29 @@ class OgdenUnitResponse:
             self.groups[g] = np.flatnonzero(np.isin(self.cycle_of_point, cycles))
         self.nodes: dict[int, np.ndarray] = {}
         self._splines: dict[int, interpolate.CubicSpline] = {}
+        #: discretisation correction per point (see :meth:`set_correction`)
+        self.correction = np.ones(len(self.travel))
+        self.mesh_ratio = np.ones(len(data.levels))
 
     def key(self, alpha: float, geometry) -> CurveKey:
         """The forward solve of one geometry at ``alpha``."""
         return CurveKey(alpha=(float(alpha),), diameter_mm=geometry[0], height_mm=geometry[1],
                         nu=self.settings.nu, platen=self.settings.platen)
 
-    def direct(self, alpha: float) -> np.ndarray:
-        """Unit forces from solves at exactly this alpha, shape (n_points,)."""
+    def _raw(self, alpha: float) -> np.ndarray:
         out = np.empty(len(self.travel))
         for g, idx in self.groups.items():
             out[idx] = self.forward.unit_forces(self.key(alpha, g), self.travel[idx])
         return out
 
+    def direct(self, alpha: float) -> np.ndarray:
+        """Unit forces from solves at exactly this alpha, shape (n_points,)."""
+        return self._raw(alpha) * self.correction
+
     def node(self, k: int) -> np.ndarray:
-        """Unit forces at the grid node ``alpha_step * k`` (k >= 1)."""
+        """Uncorrected unit forces at the grid node ``alpha_step * k`` (k >= 1)."""
         if k not in self.nodes:
-            self.nodes[k] = self.direct(self.settings.alpha_step * k)
+            self.nodes[k] = self._raw(self.settings.alpha_step * k)
         return self.nodes[k]
 
     def _local(self, alpha: float):
@@ -430,11 +445,26 @@ class OgdenUnitResponse:
 
     def __call__(self, alpha: float) -> np.ndarray:
         """Unit forces interpolated at ``alpha``, shape (n_points,)."""
-        return self._local(alpha)(alpha)
+        return self._local(alpha)(alpha) * self.correction
 
     def derivative(self, alpha: float) -> np.ndarray:
         """d(unit force)/d(alpha) of the interpolant, shape (n_points,)."""
-        return self._local(alpha)(alpha, 1)
+        return self._local(alpha)(alpha, 1) * self.correction
+
+    def set_correction(self, alpha: float, mesh_scale: float) -> np.ndarray:
+        """Multiply every unit force by the finer-mesh to fitting-mesh ratio of a solve at the
+        layer's median geometry and ``alpha``, as a function of strain; returns the ratio at
+        the levels (shape (n_levels,))."""
+        d = float(np.median([c.diameter_mm for c in self.data.cycles]))
+        h = float(np.median([c.height_mm for c in self.data.cycles]))
+        key = self.key(alpha, (d, h))
+        travel = self.data.levels * h
+        ratio = (self.forward.curve(key, mesh_scale)(travel)
+                 / self.forward.curve(key)(travel))
+        self.mesh_ratio = ratio
+        level = np.broadcast_to(self.data.levels, self.data.valid.shape)[self.data.valid]
+        self.correction = np.interp(level, self.data.levels, ratio)
+        return ratio
 
 
 def _varpro_mu(U: np.ndarray, y: np.ndarray, W: np.ndarray) -> float:
@@ -632,6 +662,7 @@ class LayerFit:
     noise: NoiseModel
     covariance: np.ndarray
     alpha_nodes: dict
+    mesh_ratio: np.ndarray
     homogeneous: dict
     initial: dict
     surrogate_error: float
@@ -805,8 +836,12 @@ def fit_layer(cycles: Sequence, settings: FitSettings | None = None,
     hom_of_fe = homogeneous_fit(as_data, W, relative)["alpha"]
     guess = hom["alpha"] * (k_h * step) / hom_of_fe
 
-    # first fit with independent weights, then the noise model from per-sample fits
+    # first fit with independent weights, then the discretisation correction at its alpha,
+    # the noise model from per-sample fits, and the generalised least-squares fit
     alpha1 = _search_alpha(lambda a: project(a, W)[1], step, guess, bounds)
+    if settings.mesh_correction:
+        unit.set_correction(alpha1, settings.mesh_correction)
+        alpha1 = _search_alpha(lambda a: project(a, W)[1], step, alpha1, bounds)
     noise, per_sample = _noise_from_samples(data, unit, W, alpha1, prepared, warnings)
     mu1, _ = project(alpha1, W)
     fitted = np.full(valid.shape, np.nan)
@@ -864,13 +899,15 @@ def fit_layer(cycles: Sequence, settings: FitSettings | None = None,
     curves = []
     for c in data.cycles:
         spline = forward.curve(unit.key(alpha, (c.diameter_mm, c.height_mm)))
-        curves.append((spline.x, mu * spline(spline.x)))
+        ratio = np.interp(spline.x / c.height_mm, data.levels, unit.mesh_ratio)
+        curves.append((spline.x, mu * spline(spline.x) * ratio))
     return LayerFit(
         layer=data.layer, model="ogden", mu_Pa=float(mu), alpha=float(alpha), nu=settings.nu,
         mu_stderr_Pa=mu_se, alpha_stderr=alpha_se, mu_alpha_correlation=float(corr),
         rms_N=rms, n_cycles=len(data.cycles), ci=ci, aic=float(result.aic),
         bic=float(result.bic), chisqr=float(result.chisqr), redchi=float(result.redchi),
         ndata=int(result.ndata), noise=noise, covariance=cov, alpha_nodes=dict(unit.nodes),
+        mesh_ratio=unit.mesh_ratio,
         homogeneous=hom,
         initial={"mu_Pa_modulus": mu_e, "alpha_homogeneous": hom["alpha"],
                  "alpha_guess": guess, "alpha_first_fit": alpha1,
