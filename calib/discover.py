@@ -320,54 +320,68 @@ class Compressibility(_GridForwardEffect):
         return True, ""
 
 
-def _uniaxial(lam, alpha):
-    """Unit-modulus incompressible uniaxial nominal stress (Pa per Pa of mu)."""
-    return 2.0 / alpha * (lam ** (alpha - 1.0) - lam ** (-0.5 * alpha - 1.0))
-
-
 class SecondOgdenTerm(Effect):
-    """A second Ogden term: mu_2 = fraction2 * mu, mu_1 = (1 - fraction2) * mu, so the
-    small-strain modulus is unchanged; mu_i alpha_i > 0. For the fast refit the relative
-    change of the force is taken from the homogeneous closed form (the bonded curve's change of
-    shape follows the material's to first order); the direct check solves the two-term law."""
+    """A second Ogden term: mu_2 = fraction2 * mu, mu_1 = (1 - fraction2) * mu (the small-strain
+    modulus is unchanged), exponent alpha2, with mu_i alpha_i > 0 (fraction2 takes the sign of
+    alpha2). Tabulated by FE solves of the two-term law on two branches, alpha2 in
+    {-6, -4, -2.5, -1.5} and {1.5, 3, 6, 10, 14}, |fraction2| in {0.15, 0.35, 0.6}; cubic
+    interpolation between. The internal parameters are a branch coordinate t in [-1, 1]
+    (t < 0: alpha2 = -1.5 + 4.5 t; t >= 0: alpha2 = 1.5 + 12.5 t) and |fraction2|."""
 
     name = "second_ogden_term"
-    uses_alpha = True
     names = ("alpha2", "fraction2")
-    bounds = ((-8.0, 16.0), (-0.6, 0.6))
-    null = (2.0, 0.0)
+    bounds = ((-1.0, 1.0), (0.0, 0.6))
+    null = (0.5, 0.0)
+    BRANCHES = (np.array([-6.0, -4.0, -2.5, -1.5]), np.array([1.5, 3.0, 6.0, 10.0, 14.0]))
+    FRACTIONS = np.array([0.0, 0.15, 0.35, 0.6])
+
+    @staticmethod
+    def alpha2(t: float) -> float:
+        """alpha2 of the branch coordinate t."""
+        return -1.5 + 4.5 * t if t < 0 else 1.5 + 12.5 * t
+
+    def report(self, theta):
+        a2 = self.alpha2(theta[0])
+        return {"alpha2": a2, "fraction2": math.copysign(theta[1], a2)}
+
+    def prepare(self, ctx):
+        base = ctx.curve_at_strain(ctx.base_key(ctx.alpha_ref), ctx.data.levels)
+        tables = []
+        for alphas in self.BRANCHES:
+            values = np.zeros((len(alphas), len(self.FRACTIONS), len(ctx.data.levels)))
+            for i, a2 in enumerate(alphas):
+                for j, frac in enumerate(self.FRACTIONS[1:], start=1):
+                    r = math.copysign(frac, a2)
+                    key = ctx.base_key(ctx.alpha_ref, alpha=(float(ctx.alpha_ref), float(a2)),
+                                       fractions=(1.0 - r, r))
+                    values[i, j] = np.log(ctx.curve_at_strain(key, ctx.data.levels) / base)
+            tables.append(interpolate.RegularGridInterpolator((alphas, self.FRACTIONS), values,
+                                                              method="cubic"))
+        ctx.second_term_tables = tables
+        ctx.level_index = np.searchsorted(ctx.data.levels, ctx.level)
 
     def modification(self, theta, ctx, mu, alpha):
-        a2, r = theta
-        if abs(a2) < 0.2:
-            a2 = math.copysign(0.2, a2 or 1.0)
-        lam = 1.0 - ctx.level
-        one = _uniaxial(lam, alpha)
-        two = (1.0 - r) * one + r * _uniaxial(lam, a2)
-        ratio = two / one
-        return np.log(np.where(ratio > 1e-6, ratio, 1e-6))
-
-    def feasible(self, theta, alpha):
-        a2, r = theta
-        return r * a2 >= 0.0 and (1.0 - r) * alpha > 0.0
+        t, frac = theta
+        a2 = self.alpha2(t)
+        table = ctx.second_term_tables[0 if a2 < 0 else 1]
+        lo, hi = table.grid[0][0], table.grid[0][-1]
+        m = table([[min(hi, max(lo, a2)), min(0.6, max(0.0, frac))]])[0]
+        return m[ctx.level_index]
 
     def plausible(self, theta):
-        a2, r = theta
-        if abs(r) < 0.02:
-            return False, f"fraction2 = {r:.3f}: no second term"
-        if r * a2 <= 0:
-            return False, "mu2 * alpha2 <= 0 violates the stability condition"
-        if min(abs(a2 - b) for b in self.bounds[0]) < 0.2 or abs(abs(r) - 0.6) < 0.02:
-            return False, f"alpha2 = {a2:.2f}, fraction2 = {r:.2f} at the edge of the range"
+        p = self.report(theta)
+        if abs(p["fraction2"]) < 0.03:
+            return False, f"fraction2 = {p['fraction2']:.3f}: no second term"
+        if abs(theta[0]) > 0.98 or theta[1] > 0.58:
+            return False, (f"alpha2 = {p['alpha2']:.2f}, fraction2 = {p['fraction2']:.2f} at the "
+                           "edge of the searched range")
         return True, ""
 
-    def key_overrides(self, theta, rate):
-        return {}
-
     def material_key(self, theta, key: CurveKey) -> CurveKey:
-        a2, r = theta
-        return dataclasses.replace(key, alpha=(key.alpha[0], float(a2)),
-                                   fractions=(1.0 - float(r), float(r)))
+        p = self.report(theta)
+        r = p["fraction2"]
+        return dataclasses.replace(key, alpha=(key.alpha[0], p["alpha2"]),
+                                   fractions=(1.0 - r, r))
 
 
 class ContactOffset(Effect):
@@ -590,8 +604,6 @@ def _optimise(contexts, accepted: Model, effect: Effect, masks=None, start=None,
 
     def objective(flat):
         theta = _split(flat, accepted, effect)
-        if isinstance(effect, SecondOgdenTerm) and not _feasible_second(theta[-1], contexts):
-            return 1e30
         model = Model(accepted.effects + [effect], theta)
         return _campaign_fit(contexts, model, masks, warm)[0]
 
@@ -627,30 +639,60 @@ def _optimise(contexts, accepted: Model, effect: Effect, masks=None, start=None,
     return Model(accepted.effects + [effect], theta), fun
 
 
-def _refresh_noise(contexts, model: Model) -> None:
-    """Re-estimate every layer's noise model with the extended model (per-sample refits), so
-    that what the accepted effect explains no longer counts as scatter."""
+def _structure_free_noise(ctx: LayerContext, pred: np.ndarray, mu: float, alpha: float,
+                          factor: np.ndarray, sample_cov: np.ndarray) -> None:
+    """Noise model for judging candidate effects, free of the structure they might explain.
+
+    The scatter between samples comes from the base fit's per-sample fits. The scatter of a
+    cycle's level is what remains of its mean residual after sample means and linear trends in
+    test order and log rate (what rate dependence and preconditioning would explain); the
+    scatter between levels is the cycle-by-level interaction, after cycle means and the mean
+    shape of the layer's residuals (what the shape effects would explain). Judged with the base
+    fit's own variance components instead, structured misfit would count as noise and hide the
+    effects the workflow is looking for.
+    """
     from .fit import NoiseModel
 
+    q = ctx.y / pred - 1.0
+    cycles = np.unique(ctx.cycle)
+    levels = np.unique(ctx.level)
+    cyc_mean = np.array([q[ctx.cycle == c].mean() for c in cycles])
+    lev_mean = np.array([q[ctx.level == v].mean() for v in levels])
+    inter = q - cyc_mean[np.searchsorted(cycles, ctx.cycle)] \
+        - lev_mean[np.searchsorted(levels, ctx.level)] + q.mean()
+    dof = max(len(q) - len(cycles) - len(levels) + 1, 1)
+    s_e2 = float(inter @ inter) / dof
+    infos = [ctx.data.cycles[c] for c in cycles]
+    samples = sorted({i.sample for i in infos})
+    X = np.column_stack([[1.0 * (i.sample == s) for i in infos] for s in samples]
+                        + [[i.test for i in infos], [math.log10(i.rate_mm_per_s) for i in infos]])
+    coef, *_ = np.linalg.lstsq(X, cyc_mean, rcond=None)
+    rss = float(np.sum((cyc_mean - X @ coef) ** 2))
+    dof_c = len(cyc_mean) - np.linalg.matrix_rank(X)
+    m = len(q) / len(cycles)
+    s_a2 = max(0.0, rss / dof_c - s_e2 / m) if dof_c > 0 else 0.0
+    noise = NoiseModel(sample_cov, math.sqrt(s_a2), max(math.sqrt(s_e2), 1e-4))
+    J = np.column_stack([pred, mu * ctx.unit.derivative(alpha) * factor])
+    grid = np.full(ctx.data.valid.shape, np.nan)
+    grid[ctx.data.valid] = pred
+    ctx.cov = noise.covariance(ctx.data, grid, J, relative=False)
+    ctx.noise = noise
+    ctx._w.clear()
+
+
+def _refresh_noise(contexts, model: Model) -> None:
+    """Re-estimate every layer's noise model with the extended model: the scatter between
+    samples from per-sample refits, the rest as in :func:`_structure_free_noise`, so that what
+    the accepted effect explains no longer counts as scatter."""
     for ctx in contexts:
-        per_sample = {}
-        fitted_points = np.empty(len(ctx.y))
+        per_sample = []
         for s in dict.fromkeys(ctx.sample):
-            mask = ctx.sample == s
-            _, mu, alpha, pred = _layer_refit(ctx, model, mask, ctx.fit.alpha)
-            per_sample[s] = (mu, alpha)
-            fitted_points[mask] = pred[mask]
-        grid = np.full(ctx.data.valid.shape, np.nan)
-        grid[ctx.data.valid] = fitted_points
-        noise = NoiseModel.from_sample_fits(ctx.data, grid, per_sample, [])
+            _, mu, alpha, _ = _layer_refit(ctx, model, ctx.sample == s, ctx.fit.alpha)
+            per_sample.append((math.log(mu), alpha))
+        cov = np.cov(np.array(per_sample).T) if len(per_sample) > 1 else np.zeros((2, 2))
         _, mu, alpha, pred = _layer_refit(ctx, model, np.ones(len(ctx.y), bool), ctx.fit.alpha)
         factor = np.exp(model.modification(ctx, mu, alpha))
-        J = np.column_stack([pred, mu * ctx.unit.derivative(alpha) * factor])
-        grid = np.full(ctx.data.valid.shape, np.nan)
-        grid[ctx.data.valid] = pred
-        ctx.cov = noise.covariance(ctx.data, grid, J, relative=False)
-        ctx.noise = noise
-        ctx._w.clear()
+        _structure_free_noise(ctx, pred, mu, alpha, factor, cov)
 
 
 def _split(flat, accepted: Model, effect: Effect):
@@ -660,10 +702,6 @@ def _split(flat, accepted: Model, effect: Effect):
         out.append(tuple(float(v) for v in flat[i:i + n]))
         i += n
     return out
-
-
-def _feasible_second(theta, contexts):
-    return all(SecondOgdenTerm().feasible(theta, ctx.fit.alpha) for ctx in contexts)
 
 
 # ============================================================================ held-out folds
@@ -905,6 +943,10 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
 
     grid_solves = _prepare(contexts, settings, effects, None, workers, scheduler, progress)
     log(f"discover: effect grids ready ({grid_solves} forward solves)")
+    for ctx in contexts:
+        pred = ctx.fit.predicted[ctx.data.valid]
+        _structure_free_noise(ctx, pred, ctx.fit.mu_Pa, ctx.fit.alpha, np.ones(len(pred)),
+                              ctx.fit.noise.sample_cov)
 
     accepted = Model([], [])
     chi2_current = _campaign_fit(contexts, accepted)[0]

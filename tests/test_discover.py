@@ -58,15 +58,20 @@ def test_observation_models_against_their_definitions():
     assert p.observe((0.1,), 0.2, unit, mu, 3, h) == pytest.approx(0.81 * mu * unit(0.2))
 
 
-def test_second_term_keeps_the_small_strain_modulus():
+def test_second_term_parameters_keep_the_small_strain_modulus_and_stability():
+    from calib.fit import CurveKey
+
     effect = SecondOgdenTerm()
-
-    class Ctx:
-        level = np.array([1e-6, 0.1, 0.3])
-
-    m = effect.modification((-3.0, -0.3), Ctx, 1000.0, 6.0)
-    assert abs(m[0]) < 1e-5 and abs(m[2]) > 0.01
-    assert effect.feasible((-3.0, -0.3), 6.0) and not effect.feasible((-3.0, 0.3), 6.0)
+    for t in (-1.0, -0.4, 0.0, 0.3, 1.0):
+        p = effect.report((t, 0.35))
+        assert p["fraction2"] * p["alpha2"] > 0  # mu_2 alpha_2 > 0
+        key = effect.material_key((t, 0.35), CurveKey(alpha=(6.0,), diameter_mm=38.0,
+                                                      height_mm=24.0))
+        assert sum(key.fractions) == pytest.approx(1.0)  # sum mu_i = mu
+        assert key.alpha == (6.0, p["alpha2"])
+        assert all(f * a > 0 for f, a in zip(key.fractions, key.alpha))
+    assert effect.report((-1.0, 0.1))["alpha2"] == -6.0
+    assert effect.report((1.0, 0.1))["alpha2"] == 14.0
 
 
 def _preconditioned_layer(layer, mu, alpha, softening, geometries, rng):
