@@ -126,7 +126,7 @@ def main(argv=None) -> int:
         return 0
     print(f"Bonded 30 % compression, {mesh.n_cells} hexahedra / {mesh.n_nodes} nodes, "
           f"mu 1875 Pa, alpha 4.9, nu 0.499")
-    print(f"reference forces at 10/20/30 %: " + ", ".join(f"{f:.4f}" for f in ref) + " N")
+    print("reference forces at 10/20/30 %: " + ", ".join(f"{f:.4f}" for f in ref) + " N")
     print(f"{'run':34} {'wall (s)':>9} {'vs thesis':>10}  {'error at 10/20/30 %':>24}  "
           f"{'element-steps/s/core':>20}")
     print(f"{'thesis, Abaqus/Explicit':34} {60 * THESIS_MINUTES:9.0f} {1:>9.0f}x  "

@@ -35,6 +35,13 @@ import numba  # noqa: E402
 #: Decorator for every kernel in the package.
 njit = functools.partial(numba.njit, cache=True, fastmath=False, error_model="numpy", nogil=True)
 
+#: Decorator for the small per-element helpers (state, stress, spectral decomposition,
+#: material law): inlined into their callers at numba's IR level. Left to LLVM, the calls with
+#: a dozen array arguments (and the row views ``mu[m]``) were not inlined and cost more than
+#: the arithmetic: the hexahedron's force kernel ran 1.4x faster inlined.
+njit_inline = functools.partial(numba.njit, cache=True, fastmath=False, error_model="numpy",
+                                nogil=True, inline="always")
+
 #: Decorator for kernels with a ``numba.prange`` loop (parallel over elements).
 njit_parallel = functools.partial(
     numba.njit, cache=True, fastmath=False, error_model="numpy", nogil=True, parallel=True

@@ -28,6 +28,20 @@ are held by Flanagan-Belytschko stiffness in the reference configuration (Total 
 Joldes et al. 2008), scaled by the shear modulus so that near-incompressible bulging is not
 over-constrained.
 
+The hexahedron is the same idea in 3D, Flanagan and Belytschko's uniform-strain element:
+:math:`\bar b_i = V^{-1}\int \partial N_i/\partial\mathbf X\,dV` (exact with 2x2x2
+Gauss points), :math:`\bar F = I + \sum_i u_i \otimes \bar b_i`, and four hourglass
+vectors per direction, :math:`\gamma_\alpha = h_\alpha - (h_\alpha\cdot\mathbf X_a)
+\bar b_a`, fixed in the reference configuration (Joldes et al. 2008), with the hourglass
+energy :math:`\tfrac12 k \sum_\alpha |\gamma_\alpha \cdot u|^2` and the stiffness
+:math:`k = \kappa\mu V \sum_i|\bar b_i|^2/3` (see :class:`HexOperators` for the 1/3). The
+principal stretches come from :func:`spectral_sym3`, which needs no eigenvectors and stays
+exact at repeated eigenvalues (the undeformed state, uniaxial states). The force kernel
+exists twice: :func:`hex_forces` runs the elements and then the nodes on numba's threads
+(every element writes its own forces, every node gathers its corners in a fixed order, so
+there is no race and the result does not depend on the thread count), and
+:func:`hex_forces_serial` scatters element by element.
+
 References
 ----------
 Miller K, Joldes G, Lance D, Wittek A (2007). Total Lagrangian explicit dynamics finite element
@@ -49,7 +63,7 @@ import math
 import numba
 import numpy as np
 
-from ._jit import njit, njit_parallel
+from ._jit import njit, njit_inline, njit_parallel
 from .materials import ogden_energy, ogden_kirchhoff, prony_relaxed
 
 __all__ = [
@@ -166,7 +180,7 @@ def axisymmetric_operators(points: np.ndarray, cells: np.ndarray) -> Axisymmetri
     )
 
 
-@njit
+@njit_inline
 def _inplane_pk2(C11, C22, C12, c1, c2, S1, S2):
     """In-plane second Piola-Kirchhoff tensor from its principal values.
 
@@ -183,7 +197,7 @@ def _inplane_pk2(C11, C22, C12, c1, c2, S1, S2):
     return mean, mean, 0.0
 
 
-@njit
+@njit_inline
 def _axisym_state(u, conn, bbar, hbar, e):
     """Mean deformation gradient of element ``e``: (Frr, Frz, Fzr, Fzz, Ftt)."""
     Frr = 1.0
@@ -205,11 +219,14 @@ def _axisym_state(u, conn, bbar, hbar, e):
     return Frr, Frz, Fzr, Fzz, Ftt
 
 
-@njit
+@njit_inline
 def _axisym_pk2(Frr, Frz, Fzr, Fzz, Ftt, m, mu, alpha, K, g, decay, gain, s_prev, hist, e,
                 update_history):
-    """Second Piola-Kirchhoff stress (S_rr, S_zz, S_rz, S_tt) of one quad (J > 0 checked by the
-    caller); the isochoric part relaxed by the Prony recursion (history in ``hist[e]``)."""
+    """Second Piola-Kirchhoff stress (S_rr, S_zz, S_rz, S_tt) of one quad.
+
+    J > 0 is checked by the caller; the isochoric part is relaxed by the Prony recursion
+    (history in ``hist[e]``).
+    """
     det2 = Frr * Fzz - Frz * Fzr
     C11 = Frr * Frr + Fzr * Fzr
     C22 = Frz * Frz + Fzz * Fzz
@@ -465,30 +482,30 @@ _HEX_HOURGLASS = np.array([_HEX_XI * _HEX_ETA, _HEX_ETA * _HEX_ZETA, _HEX_ZETA *
 
 
 class HexOperators:
-    """Reference-configuration operators of the uniform-strain (mean-gradient) hexahedron.
+    r"""Reference-configuration operators of the uniform-strain (mean-gradient) hexahedron.
 
     Attributes
     ----------
     bbar : ndarray, shape (n_elem, 8, 3)
-        Volume-averaged gradients :math:`\\bar b_i = V^{-1}\\int \\partial N_i/\\partial
-        \\mathbf X\\,dV` (1/m).
+        Volume-averaged gradients :math:`\bar b_i = V^{-1}\int \partial N_i/\partial
+        \mathbf X\,dV` (1/m).
     volume : ndarray, shape (n_elem,)
         Element volume (m^3).
     node_volume : ndarray, shape (n_elem, 8)
-        :math:`\\int N_i\\,dV` (m^3), the lumped-mass share of each node.
+        :math:`\int N_i\,dV` (m^3), the lumped-mass share of each node.
     gamma : ndarray, shape (n_elem, 4, 8)
-        Flanagan-Belytschko hourglass vectors :math:`\\gamma_\\alpha = h_\\alpha -
-        (h_\\alpha \\cdot \\mathbf X_a)\\,\\bar b_{a}` (dimensionless), orthogonal to every
+        Flanagan-Belytschko hourglass vectors :math:`\gamma_\alpha = h_\alpha -
+        (h_\alpha \cdot \mathbf X_a)\,\bar b_{a}` (dimensionless), orthogonal to every
         linear field; fixed in the reference configuration (Total Lagrangian).
     gamma_scale : ndarray, shape (n_elem,)
-        :math:`V \\sum_i |\\bar b_i|^2 / 3` (m); the hourglass stiffness is
-        :math:`\\kappa \\mu` times this. The factor 1/3 keeps the quad's meaning of
-        :math:`\\kappa` as a fraction of the fully integrated element's (deviatoric)
-        stiffness in the same mode: the ratio is 10.3 :math:`\\kappa` for the quad's mode
+        :math:`V \sum_i |\bar b_i|^2 / 3` (m); the hourglass stiffness is
+        :math:`\kappa \mu` times this. The factor 1/3 keeps the quad's meaning of
+        :math:`\kappa` as a fraction of the fully integrated element's (deviatoric)
+        stiffness in the same mode: the ratio is 10.3 :math:`\kappa` for the quad's mode
         on a square and for a cube's bilinear modes that stretch along the displacement
-        (e.g. :math:`u_x \\propto \\xi\\eta`), 12 :math:`\\kappa` for its pure-shear bilinear
-        modes (:math:`u_x \\propto \\eta\\zeta`) and 21.6 :math:`\\kappa` for the trilinear
-        one (a test pins these numbers). Without it the same :math:`\\kappa` would hold the
+        (e.g. :math:`u_x \propto \xi\eta`), 12 :math:`\kappa` for its pure-shear bilinear
+        modes (:math:`u_x \propto \eta\zeta`) and 21.6 :math:`\kappa` for the trilinear
+        one (a test pins these numbers). Without it the same :math:`\kappa` would hold the
         hexahedron's modes 3 to 6 times harder than the quad's, which added
         +1 % to the bonded force of the 5760-element cylinder.
     """
@@ -502,11 +519,11 @@ class HexOperators:
 
 
 def hex_operators(points: np.ndarray, cells: np.ndarray) -> HexOperators:
-    """Precompute the mean-gradient operators of every hexahedron (vectorised NumPy, once).
+    r"""Precompute the mean-gradient operators of every hexahedron (vectorised NumPy, once).
 
     The integrals are evaluated with the 2x2x2 Gauss rule, which is exact for them: the
-    integrand :math:`\\partial N_i/\\partial\\mathbf X \\det J` (the cofactors of the
-    Jacobian times the shape-function derivatives) and :math:`N_i \\det J` are polynomials of
+    integrand :math:`\partial N_i/\partial\mathbf X \det J` (the cofactors of the
+    Jacobian times the shape-function derivatives) and :math:`N_i \det J` are polynomials of
     degree at most 3 in each reference coordinate.
 
     Parameters
@@ -581,7 +598,7 @@ def node_slots(cells: np.ndarray, n_nodes: int) -> tuple[np.ndarray, np.ndarray]
     return np.ascontiguousarray(ptr), np.ascontiguousarray(order.astype(np.int64))
 
 
-@njit
+@njit_inline
 def spectral_sym3(C00, C11, C22, C01, C02, C12):
     r"""Eigenvalues and spectral projectors of a symmetric 3x3 matrix, robust when repeated.
 
@@ -689,7 +706,7 @@ def spectral_sym3(C00, C11, C22, C01, C02, C12):
 PAIR_GAP = 1e-13
 
 
-@njit
+@njit_inline
 def _hex_state(u, conn, bbar, e):
     """Mean deformation gradient of hexahedron ``e``, row-major F00..F22."""
     F00 = 1.0
@@ -721,7 +738,7 @@ def _hex_state(u, conn, bbar, e):
     return F00, F01, F02, F10, F11, F12, F20, F21, F22
 
 
-@njit
+@njit_inline
 def _hex_pk2(F00, F01, F02, F10, F11, F12, F20, F21, F22, m, mu, alpha, K, g, decay, gain,
              s_prev, hist, e, update_history):
     """Second Piola-Kirchhoff stress (S00, S11, S22, S01, S02, S12) and J of one element.
@@ -791,7 +808,7 @@ def _hex_pk2(F00, F01, F02, F10, F11, F12, F20, F21, F22, m, mu, alpha, K, g, de
     return S00, S11, S22, S01, S02, S12, J
 
 
-@njit
+@njit_inline
 def _hex_element(e, u, conn, bbar, vol, gamma, k_hg, mat, mu, alpha, K, g, decay, gain,
                  s_prev, hist, update_history, fe):
     """Internal forces of hexahedron ``e`` into ``fe`` (8, 3); returns the status code."""
@@ -1036,9 +1053,11 @@ def hex_stiffening(
     k_ratio,  # (n_mat,) K / sum(mu) of each material
     out,  # (n_elem,) output: omega^2(current) / omega^2(reference) bound per element
 ):
-    """Bound on how much each hexahedron's highest frequency has grown (see
-    :func:`axisym_stiffening`): current gradient operator :math:`\\bar b F^{-1}` and the
-    tangent p-wave modulus at the principal stretches reached."""
+    r"""Bound on how much each hexahedron's highest frequency has grown.
+
+    As :func:`axisym_stiffening`: the current gradient operator :math:`\bar b F^{-1}` and the
+    tangent p-wave modulus at the principal stretches reached.
+    """
     for e in range(conn.shape[0]):
         m = mat[e]
         F00, F01, F02, F10, F11, F12, F20, F21, F22 = _hex_state(u, conn, bbar, e)

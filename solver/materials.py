@@ -44,7 +44,7 @@ import math
 import numpy as np
 from scipy import optimize
 
-from ._jit import njit
+from ._jit import njit_inline
 
 __all__ = ["Ogden", "Prony", "NeoHookean", "bulk_modulus"]
 
@@ -371,7 +371,7 @@ def NeoHookean(mu_Pa: float, nu: float = 0.499, **kwargs) -> Ogden:
 
 
 # ====================================================================== JIT kernels
-@njit
+@njit_inline
 def ogden_kirchhoff(lam1, lam2, lam3, mu, alpha, K):
     """Principal Kirchhoff stresses of the Ogden law, split into isochoric and volumetric.
 
@@ -414,7 +414,7 @@ def ogden_kirchhoff(lam1, lam2, lam3, mu, alpha, K):
     return t1, t2, t3, K * J * (J - 1.0)
 
 
-@njit
+@njit_inline
 def ogden_energy(lam1, lam2, lam3, mu, alpha, K):
     """Strain energy density (J/m^3) of the Ogden law at principal stretches (elastic part)."""
     J = lam1 * lam2 * lam3
@@ -429,7 +429,7 @@ def ogden_energy(lam1, lam2, lam3, mu, alpha, K):
     return W
 
 
-@njit
+@njit_inline
 def prony_relaxed(s0, s0_prev, h, g, decay, gain, update):
     r"""Relaxed value of one isochoric stress component (recursive Prony update).
 

@@ -91,10 +91,10 @@ class Mesh:
 
     @property
     def radius_m(self) -> float:
-        """Outer radius of the sample (m).
+        r"""Outer radius of the sample (m).
 
         For a hexahedral mesh: the radius of the circle with the area of the bottom face,
-        :math:`\\sqrt{A/\\pi}` (a faceted cylinder's nodes may lie slightly outside it, see
+        :math:`\sqrt{A/\pi}` (a faceted cylinder's nodes may lie slightly outside it, see
         :func:`hex_cylinder`); :attr:`outer_radius_m` is the largest nodal radius.
         """
         if self.cell_type == "quad":
@@ -311,7 +311,7 @@ def hex_cylinder(
     exact_area: bool = True,
     core_rounding: float = 0.3,
 ) -> Mesh:
-    """O-grid ("butterfly") hexahedral mesh of a cylinder, graded towards the bonded rims.
+    r"""O-grid ("butterfly") hexahedral mesh of a cylinder, graded towards the bonded rims.
 
     The cross-section is a square core of ``n_core x n_core`` quads (slightly rounded, by
     blending the square with the elliptical square-to-disc map) surrounded by a ring of
@@ -345,8 +345,8 @@ def hex_cylinder(
         the bottom (``cell_material``).
     exact_area : bool
         ``True``: the outer nodes lie on a circle slightly larger than the sample, by the
-        factor :math:`\\sqrt{\\theta / \\sin\\theta}` (:math:`\\theta = 2\\pi/(4 n_{core})`),
-        so that the faceted cross-section has exactly the sample's area :math:`\\pi R^2` (an
+        factor :math:`\sqrt{\theta / \sin\theta}` (:math:`\theta = 2\pi/(4 n_{core})`),
+        so that the faceted cross-section has exactly the sample's area :math:`\pi R^2` (an
         inscribed polygon of 32 sides is 0.64 % short, which would show up one to one in
         the force). ``False``: the outer nodes lie on the circle.
     core_rounding : float

@@ -144,9 +144,9 @@ def element_max_frequency_sq(Ke: np.ndarray, element_mass: np.ndarray) -> np.nda
 
 
 def factorize(K: sp.spmatrix, free: np.ndarray):
-    """Sparse LU factors of the free-free block, for :func:`lowest_mode` and
-    :func:`influence_field` to share.
+    """Sparse LU factors of the free-free block, shared by the static set-up.
 
+    :func:`lowest_mode` and :func:`influence_field` take them as ``lu``.
     The block is symmetric positive definite once the platens hold the sample, so SuperLU
     runs in its symmetric mode with a minimum-degree ordering of :math:`K + K^T` and no
     pivoting: for the 17 000 DOFs of a 6000-hexahedron cylinder this factorises in a
@@ -248,6 +248,7 @@ def _krylov_lowest(Kff, m, lu, w, participation, n_max: int = 24, rtol: float = 
     """
     basis = []
     x = w.copy()
+    scale = math.sqrt(float(x @ (m * x)))
     previous = None
     for _ in range(n_max):
         for _ in range(2):
@@ -256,8 +257,6 @@ def _krylov_lowest(Kff, m, lu, w, participation, n_max: int = 24, rtol: float = 
         norm = math.sqrt(float(x @ (m * x)))
         if basis and norm <= 1e-12 * scale:
             break  # the space is exhausted (invariant subspace reached)
-        if not basis:
-            scale = norm
         x = x / norm
         basis.append(x)
         V = np.column_stack(basis)

@@ -198,3 +198,36 @@ def test_output_rejects_wrong_suffix(tmp_path, bonded):
     with pytest.raises(ValueError, match="PNG"):
         bonded.write_png(tmp_path / "x.jpg")
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.slow
+def test_cli_simulate_hex_writes_curve_vtk_png(tmp_path):
+    """calib simulate --mesh hex: the default hex mesh, the curve, VTK and PNG; --json
+    prints one object; a bad --vtk name is a usage error (exit 2) before any work."""
+    import json
+    import subprocess
+    import sys
+
+    out, vtu, png = tmp_path / "c.csv", tmp_path / "m.vtu", tmp_path / "p.png"
+    cmd = [sys.executable, "-m", "calib", "simulate", "--mesh", "hex", "--out", str(out),
+           "--vtk", str(vtu), "--png", str(png), "--json"]
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
+    assert run.returncode == 0, run.stderr
+    report = json.loads(run.stdout)
+    assert report["mesh"] == "hex" and report["n_cells"] == hex_cylinder().n_cells
+    curve = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert curve.shape == (61, 3) and curve[-1, 1] == pytest.approx(7.2)
+    np.testing.assert_allclose(curve[:, 2], report["force_N"], rtol=1e-8)
+    assert meshio.read(vtu).cells[0].type == "hexahedron"
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    bad = subprocess.run(cmd[:4] + ["--vtk", str(tmp_path / "m.txt")], capture_output=True,
+                         text=True, timeout=300)
+    assert bad.returncode == 2 and "--vtk" in bad.stderr and not bad.stdout
+
+
+def test_hourglassing_stops_the_run_with_a_clear_error(coarse):
+    """Hourglass modes taking over is reported like an inversion, not returned: here with a
+    limit far below the coarse mesh's ~5 % (the default limit is 10 %)."""
+    with pytest.raises(SolverInstability, match="hourglassing") as info:
+        simulate(MATERIAL, CompressionTest(), coarse, max_hourglass_ratio=0.005)
+    assert 0 <= info.value.element < coarse.n_cells and "strain energy" in str(info.value)
