@@ -42,6 +42,12 @@ def test_frictionless_matches_closed_form(coarse, ramp):
     assert r.hourglass_ratio < 1e-6
     assert r.contact_radius_mm[-1] == pytest.approx(
         1e3 * np.hypot(*r.deformed_points_m[:, :2].T).max(), rel=1e-5)
+    # the stress output: every element carries the homogeneous uniaxial Cauchy stress
+    lam = 1.0 - 7.2 / 24.0
+    lt = MATERIAL.uniaxial_lateral_stretch(lam)
+    sigma = MATERIAL.kirchhoff_stress([lt, lt, lam]) / (lt * lt * lam)
+    np.testing.assert_allclose(r.cell_stress_Pa[:, 2], sigma[2], rtol=5e-3)
+    assert np.abs(r.cell_stress_Pa[:, [0, 1, 3, 4, 5]]).max() < 5e-3 * abs(sigma[2])
 
 
 def test_frictionless_block_matches_closed_form():
