@@ -175,8 +175,9 @@ class Effect:
         """Parameters in the reported (physical) names and units."""
         return dict(zip(self.names, (float(t) for t in theta)))
 
-    def plausible(self, theta) -> tuple[bool, str]:
-        """Whether the parameters are physically plausible, and why not."""
+    def plausible(self, theta, contexts=()) -> tuple[bool, str]:
+        """Whether the parameters are physically plausible, and why not (``contexts``: the
+        layers, for effects whose grids know where the model breaks down)."""
         return True, ""
 
     def key_overrides(self, theta, rate: float) -> dict:
@@ -232,7 +233,7 @@ class RateDependence(Effect):
         gamma, log_tau = theta
         return {"g1": gamma / (1.0 + gamma), "tau1_s": math.exp(log_tau)}
 
-    def plausible(self, theta):
+    def plausible(self, theta, contexts=()):
         p = self.report(theta)
         if not 0.02 <= p["g1"] <= 0.95:
             return False, f"g1 = {p['g1']:.3f} outside [0.02, 0.95]"
@@ -293,7 +294,7 @@ class PlatenSlip(_GridForwardEffect):
             return {"platen": "frictionless"}
         return {"platen": "coulomb", "friction": value}
 
-    def plausible(self, theta):
+    def plausible(self, theta, contexts=()):
         if theta[0] >= 0.8:
             return False, f"friction {theta[0]:.2f}: platens effectively bonded"
         return True, ""
@@ -312,7 +313,7 @@ class Compressibility(_GridForwardEffect):
     def overrides(self, value):
         return {} if value == self.reference else {"nu": value}
 
-    def plausible(self, theta):
+    def plausible(self, theta, contexts=()):
         if theta[0] <= 0.405:
             return False, f"nu = {theta[0]:.3f} at the edge of the searched range"
         if theta[0] >= 0.497:
@@ -345,19 +346,30 @@ class SecondOgdenTerm(Effect):
         return {"alpha2": a2, "fraction2": math.copysign(theta[1], a2)}
 
     def prepare(self, ctx):
+        from solver import SolverInstability
+
         base = ctx.curve_at_strain(ctx.base_key(ctx.alpha_ref), ctx.data.levels)
         tables = []
+        unstable = []
         for alphas in self.BRANCHES:
             values = np.zeros((len(alphas), len(self.FRACTIONS), len(ctx.data.levels)))
             for i, a2 in enumerate(alphas):
                 for j, frac in enumerate(self.FRACTIONS[1:], start=1):
                     r = math.copysign(frac, a2)
-                    key = ctx.base_key(ctx.alpha_ref, alpha=(float(ctx.alpha_ref), float(a2)),
-                                       fractions=(1.0 - r, r))
-                    values[i, j] = np.log(ctx.curve_at_strain(key, ctx.data.levels) / base)
+                    key = dataclasses.replace(ctx.base_key(ctx.alpha_ref),
+                                              alpha=(float(ctx.alpha_ref), float(a2)),
+                                              fractions=(1.0 - r, r))
+                    try:
+                        values[i, j] = np.log(ctx.curve_at_strain(key, ctx.data.levels) / base)
+                    except SolverInstability:
+                        # this law does not survive the test: keep the table smooth with the
+                        # previous fraction's values and rule the neighbourhood out
+                        values[i, j] = values[i, j - 1]
+                        unstable.append((float(a2), float(frac)))
             tables.append(interpolate.RegularGridInterpolator((alphas, self.FRACTIONS), values,
                                                               method="cubic"))
         ctx.second_term_tables = tables
+        ctx.second_term_unstable = unstable
         ctx.level_index = np.searchsorted(ctx.data.levels, ctx.level)
 
     def modification(self, theta, ctx, mu, alpha):
@@ -368,10 +380,15 @@ class SecondOgdenTerm(Effect):
         m = table([[min(hi, max(lo, a2)), min(0.6, max(0.0, frac))]])[0]
         return m[ctx.level_index]
 
-    def plausible(self, theta):
+    def plausible(self, theta, contexts=()):
         p = self.report(theta)
         if abs(p["fraction2"]) < 0.03:
             return False, f"fraction2 = {p['fraction2']:.3f}: no second term"
+        for ctx in contexts:
+            for a2, frac in getattr(ctx, "second_term_unstable", ()):
+                if abs(p["alpha2"] - a2) < 2.5 and abs(theta[1] - frac) < 0.25:
+                    return False, (f"near a two-term law (alpha2 {a2:g}, fraction {frac:g}) "
+                                   f"whose simulation of layer {ctx.layer} went unstable")
         if abs(theta[0]) > 0.98 or theta[1] > 0.58:
             return False, (f"alpha2 = {p['alpha2']:.2f}, fraction2 = {p['fraction2']:.2f} at the "
                            "edge of the searched range")
@@ -410,7 +427,7 @@ class ContactOffset(Effect):
         shifted = np.maximum(np.asarray(strain) - theta[0] / height_mm, 1e-6)
         return mu * unit_force(shifted)
 
-    def plausible(self, theta):
+    def plausible(self, theta, contexts=()):
         if abs(theta[0]) < 0.01:
             return False, "offset below 0.01 mm"
         if theta[0] <= self.bounds[0][0] + 0.02 or theta[0] >= self.bounds[0][1] - 0.02:
@@ -461,7 +478,7 @@ class MachineCompliance(Effect):
         s = _compliant_strain(np.asarray(strain, float), unit_force, mu, theta[0], height_mm)
         return mu * unit_force(s)
 
-    def plausible(self, theta):
+    def plausible(self, theta, contexts=()):
         if theta[0] <= 0.002:
             return False, f"compliance {theta[0]:.4f} mm/N is not positive"
         if theta[0] >= self.bounds[0][1] - 0.01:
@@ -483,7 +500,7 @@ class Preconditioning(Effect):
     def observe(self, theta, strain, unit_force, mu, test, height_mm):
         return mu * (1.0 - theta[0]) ** (test - 1) * unit_force(strain)
 
-    def plausible(self, theta):
+    def plausible(self, theta, contexts=()):
         if not 0.005 <= theta[0] <= 0.45:
             return False, f"softening {theta[0]:.3f} outside [0.005, 0.45]"
         return True, ""
@@ -967,7 +984,7 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
             delta_bic = (chi2 - chi2_current) + k * math.log(n_cycles)
             _, fits = _campaign_fit(contexts, model)
             rms = _rms(contexts, fits)
-            ok, reason = effect.plausible(model.theta[-1])
+            ok, reason = effect.plausible(model.theta[-1], contexts)
             tried.append((Candidate(effect.name, float(delta_bic), rms,
                                     effect.report(model.theta[-1]), ok, reason), model))
             log(f"discover round {round_no + 1}: {effect.name:<20} dBIC {delta_bic:10.1f} "
@@ -986,7 +1003,7 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
                                     scheduler, False)
             model, chi2 = _optimise(contexts, accepted, effect, start=model.theta[-1])
             _, fits = _campaign_fit(contexts, model)
-            ok, reason = effect.plausible(model.theta[-1])
+            ok, reason = effect.plausible(model.theta[-1], contexts)
             tried[i] = (Candidate(effect.name, float(chi2 - chi2_current
                                                      + len(effect.bounds) * math.log(n_cycles)),
                                   _rms(contexts, fits), effect.report(model.theta[-1]), ok,
