@@ -78,8 +78,11 @@ EFFECTS = ("rate_dependence", "platen_slip", "contact_offset", "machine_complian
 #: Acceptance thresholds, calibrated on null (``clean``) campaigns by
 #: ``experiments/null_calibration.py`` (see its output in experiments/null_calibration.json).
 THRESHOLDS = {
-    "delta_bic": -40.0,          # at most this (negative: the extended model is better)
-    "heldout_improvement": 0.05,  # at least this relative drop of the held-out RMS, both folds
+    # at most this dBIC per compared cycle (negative: the extended model is better); per cycle
+    # because a systematic misfit grows with the amount of data, as does a real effect
+    "delta_bic_per_cycle": -3.0,
+    # at least this relative drop of the held-out RMS, in both kinds of folds
+    "heldout_improvement": 0.05,
 }
 #: Candidates checked on held-out folds per round.
 TOP_CANDIDATES = 3
@@ -995,7 +998,8 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
         # each leading candidate's own fit and polish its parameters there
         for i, (cand, model) in enumerate(tried[:TOP_CANDIDATES]):
             effect = model.effects[-1]
-            if cand.delta_bic > thresholds["delta_bic"] or type(effect).prepare is Effect.prepare:
+            if (cand.delta_bic > thresholds["delta_bic_per_cycle"] * n_cycles
+                    or type(effect).prepare is Effect.prepare):
                 continue
             _, fits = _campaign_fit(contexts, model)
             alphas = {layer: fit[2] for layer, fit in fits.items()}
@@ -1013,7 +1017,8 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
         tried.sort(key=lambda cm: cm[0].delta_bic)
         passing = []
         for cand, model in tried[:TOP_CANDIDATES]:
-            if cand.delta_bic > thresholds["delta_bic"] or not cand.plausible:
+            if (cand.delta_bic > thresholds["delta_bic_per_cycle"] * n_cycles
+                    or not cand.plausible):
                 continue
             effect = model.effects[-1]
 

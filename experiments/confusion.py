@@ -43,7 +43,8 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
     t_gen = time.perf_counter() - start
     # thresholds off: every plausible leading candidate gets its held-out check
     result = discover_campaign(campaign, progress=False, log=lambda *a: None,
-                               thresholds={"delta_bic": math.inf, "heldout_improvement": -math.inf},
+                               thresholds={"delta_bic_per_cycle": math.inf,
+                                           "heldout_improvement": -math.inf},
                                max_rounds=1)
     candidates = [c.to_dict() | {"heldout_improvement": c.heldout_improvement}
                   for c in result.rounds[0]]
@@ -55,7 +56,8 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
         "heldout_before": {k: v["rms_N"] for k, v in result.heldout_before.items()},
         "heldout_after": {k: v["rms_N"] for k, v in result.heldout_after.items()},
         "named_unthresholded": result.effect,
-        "named": decide(candidates, THRESHOLDS),
+        "n_cycles": len(campaign.cycles),
+        "named": decide(candidates, THRESHOLDS, len(campaign.cycles)),
         "generate_s": t_gen, "discover_s": result.wall_s, "forward_solves": result.n_solves,
     }
     if keep is not None:
@@ -64,11 +66,12 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
     return record
 
 
-def decide(candidates: list[dict], thresholds) -> str:
+def decide(candidates: list[dict], thresholds, n_cycles: int) -> str:
     """The effect named by the acceptance rules from round-1 candidate records."""
     for c in sorted(candidates, key=lambda c: c["delta_bic"]):
         gains = c.get("heldout_improvement")
-        if c["delta_bic"] > thresholds["delta_bic"] or not c["plausible"] or gains is None:
+        if (c["delta_bic"] > thresholds["delta_bic_per_cycle"] * n_cycles
+                or not c["plausible"] or gains is None):
             continue
         if all(v >= thresholds["heldout_improvement"] for v in gains.values()):
             return c["effect"]
@@ -88,20 +91,38 @@ def summarise(records: list[dict]) -> str:
         lines.append(f"| {s} | " + " | ".join(str(v) for v in row) + " |")
     nulls = [r for r in records if r["scenario"] == "clean"]
     if nulls:
-        best = []
-        for r in nulls:
-            ok = [c for c in r["candidates"] if c["plausible"] and c.get("heldout_improvement")]
-            best.append(min((c["delta_bic"] for c in r["candidates"] if c["plausible"]),
-                            default=math.inf))
-            worst_gain = max((min(c["heldout_improvement"].values()) for c in ok),
-                             default=-math.inf)
-            r["_gain"] = worst_gain
         fp = sum(1 for r in nulls if r["named"] != "none")
         lines += ["", f"null runs: {len(nulls)}, named an effect: {fp} "
-                  f"({100 * fp / len(nulls):.1f} %) with thresholds {THRESHOLDS}",
-                  "null best plausible dBIC per run: " + ", ".join(f"{b:.1f}" for b in best),
-                  "null best held-out gain (both folds) per run: "
-                  + ", ".join(f"{r['_gain']:+.3f}" for r in nulls)]
+                  f"({100 * fp / len(nulls):.1f} %) with thresholds {THRESHOLDS}", "",
+                  "false-positive rate of null runs for thresholds (dBIC per cycle x held-out "
+                  "gain); the smallest passing candidate per run:"]
+        grid_x = [-1.0, -2.0, -3.0, -4.0, -6.0, -8.0]
+        grid_y = [0.0, 0.02, 0.05, 0.08, 0.12]
+        lines.append("| dBIC/cycle \\ gain | " + " | ".join(f"{y:.2f}" for y in grid_y) + " |")
+        lines.append("| --- |" + " --- |" * len(grid_y))
+        for x in grid_x:
+            row = []
+            for y in grid_y:
+                th = {"delta_bic_per_cycle": x, "heldout_improvement": y}
+                rate = sum(decide(r["candidates"], th, r["n_cycles"]) != "none" for r in nulls)
+                row.append(f"{rate}/{len(nulls)}")
+            lines.append(f"| {x:g} | " + " | ".join(row) + " |")
+        for r in nulls:
+            ok = [c for c in r["candidates"] if c["plausible"] and c.get("heldout_improvement")]
+            desc = ", ".join(f"{c['effect']} {c['delta_bic'] / r['n_cycles']:.1f}/cycle "
+                             f"gain {min(c['heldout_improvement'].values()):+.3f}" for c in ok)
+            lines.append(f"- seed {r['seed']}: {desc or 'no plausible candidate'}")
+    effects = [r for r in records if r["scenario"] != "clean"]
+    if effects:
+        lines += ["", "effect runs, the true effect's candidate:"]
+        for r in effects:
+            true = [c for c in r["candidates"] if c["effect"] == r["scenario"]]
+            c = true[0] if true else None
+            gain = (min(c["heldout_improvement"].values()) if c and c.get("heldout_improvement")
+                    else float("nan"))
+            lines.append(f"- {r['scenario']} seed {r['seed']}: named {r['named']}; true effect "
+                         f"{c['delta_bic'] / r['n_cycles']:.1f}/cycle, gain {gain:+.3f}, "
+                         f"{c['parameters']} (truth {r['truth']})" if c else "")
     return "\n".join(lines)
 
 

@@ -119,7 +119,7 @@ def test_nothing_is_named_on_clean_data():
                                log=lambda *a: None, workers=1)
     assert result.effect == "none"
     assert result.rms_after_N == result.rms_before_N
-    assert math.isfinite(THRESHOLDS["delta_bic"])
+    assert math.isfinite(THRESHOLDS["delta_bic_per_cycle"])
 
 
 def test_discover_cli_usage_errors(tmp_path, capsys):
