@@ -79,6 +79,7 @@ from .loading import CompressionTest, travel
 from .materials import Ogden
 from .mesh import Mesh, axisymmetric_cylinder
 from .stiffness import (
+    TangentProbe,
     assemble,
     element_max_frequency_sq,
     element_stiffness,
@@ -475,6 +476,8 @@ def simulate(
     dt_safety: float = 0.8,
     parallel: bool = True,
     max_hourglass_ratio: float = 0.1,
+    influence: str | None = None,
+    influence_updates: int = 10,
 ) -> SimulationResult:
     """Run one explicit compression test and return its force-travel curve.
 
@@ -512,6 +515,17 @@ def simulate(
         The run stops (:class:`SolverInstability`) once the hourglass energy exceeds this
         fraction of the strain energy: the elements then deform in their zero-energy modes
         and the force is an artefact (the usual explicit-dynamics guideline is 10 %).
+    influence : {"tangent", "linear"}, optional
+        Test field of the virtual-work force. ``"linear"``: the static influence field of the
+        undeformed sample, computed once; it removes the inertia from the force to first
+        order. ``"tangent"``: the influence field of the current tangent stiffness (coloured
+        finite differences of the force kernel, :class:`solver.stiffness.TangentProbe`) with
+        the current contact state, recomputed ``influence_updates`` times along the ramp;
+        the inertia left in the force is then of second order, so shorter ramps
+        (``quasi_static_ratio``) reach the same accuracy. Default: tangent for quads,
+        linear for hexahedra (whose sparse solves cost more than they save).
+    influence_updates : int
+        How often along the ramp the tangent influence field is recomputed.
 
     Returns
     -------
@@ -544,6 +558,9 @@ def simulate(
         raise ValueError(f"quasi_static_ratio={quasi_static_ratio} must be positive")
 
     hexa = mesh.cell_type == "hexahedron"
+    influence = influence or ("linear" if hexa else "tangent")
+    if influence not in ("tangent", "linear"):
+        raise ValueError(f"influence={influence!r} is not 'tangent' or 'linear'")
     if hexa:
         ops = hex_operators(mesh.points, mesh.cells)
     else:
@@ -593,8 +610,10 @@ def simulate(
         fix_tangent = np.zeros(n_nodes, dtype=bool)
     constrained[fix_tangent, :-1] = True
     static = constrained.copy()
+    twist_pin = np.zeros((n_nodes, dim), dtype=bool)
     if hexa and not bonded:
-        static[_twist_pin(mesh, sets)] = True
+        twist_pin[_twist_pin(mesh, sets)] = True
+        static |= twist_pin
     prescribed = np.zeros((n_nodes, dim))
     prescribed[sets["top"], -1] = -1.0  # unit travel of the top platen
     Ke_lt = element_stiffness(ops, shear_lt, bulk, k_hg_unit)
@@ -672,6 +691,33 @@ def simulate(
                                k_hg, mat, mu, alpha, K, g, decay, gain, s_prev, hist, u_eval,
                                energy_acc)
 
+    def forces(uu):
+        """Internal forces at ``uu`` without advancing any history (for the tangent)."""
+        ff = np.zeros_like(uu)
+        if hexa:
+            hex_forces_serial(uu, mesh.cells, ops.bbar, ops.volume, ops.gamma, k_hg, mat, mu,
+                              alpha, K, g, decay, gain, s_prev, hist, False, fe1, ff)
+        else:
+            axisym_forces(uu, mesh.cells, ops.bbar, ops.hbar, ops.volume, ops.gamma, k_hg, mat,
+                          mu, alpha, K, g, decay, gain, s_prev, hist, False, ff)
+        return ff
+
+    probe = TangentProbe(mesh.cells, n_nodes, dim) if influence == "tangent" else None
+
+    def tangent_influence():
+        """Influence field of the current tangent stiffness and contact state."""
+        Kt = probe.stiffness(forces, u_eval, 1e-7 * H)
+        held = twist_pin.copy()
+        held[fix_tangent, :-1] = True
+        touching = state != FREE
+        held[touching, -1] = True
+        if mode != FRICTIONLESS:
+            held[touching, :-1] = True
+        held[glued, :] = True
+        moved = np.zeros((n_nodes, dim))
+        moved[state == TOP, -1] = -1.0
+        return influence_field(Kt, ~held.ravel(), moved.ravel()).reshape(n_nodes, dim)
+
     def stiffen():
         if hexa:
             hex_stiffening(u, mesh.cells, ops.bbar, mat, alpha, share, k_ratio, stiffening)
@@ -688,6 +734,7 @@ def simulate(
     dt_prev = 0.0
     steps = 0
     start = time.perf_counter()
+    every = max(1, (len(times) - 1) // max(1, influence_updates))
     for k, t_stop in enumerate(times):
         status, elem, t_eval, t, dt_prev, n = advance(t_stop, t, dt, dt_prev, decay, gain)
         steps += n
@@ -697,6 +744,8 @@ def simulate(
             d_mm = 1e3 * travel(t_eval, kind, T_ramp, D, t_table, d_table)
             raise SolverInstability(reason, steps, t_eval, d_mm, elem)
         d = travel(t_eval, kind, T_ramp, D, t_table, d_table)
+        if probe is not None and k > 0 and (k - 1) % every == 0:
+            w = tangent_influence()
         _record(out, k, t_eval, d, u_eval, v, f_int, f_c, state, w, mass, energy_acc, X,
                 energy_fn, energy_args)
         kinetic, external = out["kinetic_J"][k], out["external_J"][k]

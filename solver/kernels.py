@@ -64,7 +64,7 @@ import numba
 import numpy as np
 
 from ._jit import njit, njit_inline, njit_parallel
-from .materials import ogden_energy, ogden_kirchhoff, prony_relaxed
+from .materials import ogden_energy, ogden_kirchhoff_logs, prony_relaxed
 
 __all__ = [
     "AxisymmetricOperators",
@@ -235,8 +235,8 @@ def _axisym_pk2(Frr, Frz, Fzr, Fzz, Ftt, m, mu, alpha, K, g, decay, gain, s_prev
     half = math.sqrt(0.25 * (C11 - C22) ** 2 + C12 * C12)
     c1 = mean + half
     c2 = det2 * det2 / c1  # = mean - half without cancellation
-    t1, t2, t3, tvol = ogden_kirchhoff(math.sqrt(c1), math.sqrt(c2), Ftt, mu[m], alpha[m],
-                                       K[m])
+    t1, t2, t3, tvol = ogden_kirchhoff_logs(0.5 * math.log(c1), 0.5 * math.log(c2),
+                                            math.log(Ftt), det2 * Ftt, mu[m], alpha[m], K[m])
     # instantaneous isochoric PK2 in tensor components
     s11, s22, s12 = _inplane_pk2(C11, C22, C12, c1, c2, t1 / c1, t2 / c2)
     stt = t3 / (Ftt * Ftt)
@@ -759,8 +759,8 @@ def _hex_pk2(F00, F01, F02, F10, F11, F12, F20, F21, F22, m, mu, alpha, K, g, de
     C12 = F01 * F02 + F11 * F12 + F21 * F22
     (c1, c2, c3, P00, P11, P22, P01, P02, P12,
      D00, D11, D22, D01, D02, D12, delta, scale) = spectral_sym3(C00, C11, C22, C01, C02, C12)
-    t1, t2, t3, tvol = ogden_kirchhoff(math.sqrt(c1), math.sqrt(c2), math.sqrt(c3), mu[m],
-                                       alpha[m], K[m])
+    t1, t2, t3, tvol = ogden_kirchhoff_logs(0.5 * math.log(c1), 0.5 * math.log(c2),
+                                            0.5 * math.log(c3), J, mu[m], alpha[m], K[m])
     s1 = t1 / c1
     s2 = t2 / c2
     s3 = t3 / c3

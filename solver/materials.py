@@ -393,11 +393,21 @@ def ogden_kirchhoff(lam1, lam2, lam3, mu, alpha, K):
     tvol : float
         Volumetric Kirchhoff stress :math:`J p = K J (J - 1)` (Pa), the same in every direction.
     """
-    J = lam1 * lam2 * lam3
-    third_log_J = math.log(J) / 3.0
-    l1 = math.log(lam1) - third_log_J
-    l2 = math.log(lam2) - third_log_J
-    l3 = math.log(lam3) - third_log_J
+    return ogden_kirchhoff_logs(math.log(lam1), math.log(lam2), math.log(lam3),
+                                lam1 * lam2 * lam3, mu, alpha, K)
+
+
+@njit_inline
+def ogden_kirchhoff_logs(log1, log2, log3, J, mu, alpha, K):
+    """:func:`ogden_kirchhoff` from the logarithms of the principal stretches and J.
+
+    The element kernels have the squared stretches (eigenvalues of C) and J at hand:
+    ``log(lam) = log(c) / 2`` saves the square roots and the logarithm of J.
+    """
+    third_log_J = (log1 + log2 + log3) / 3.0
+    l1 = log1 - third_log_J
+    l2 = log2 - third_log_J
+    l3 = log3 - third_log_J
     t1 = 0.0
     t2 = 0.0
     t3 = 0.0

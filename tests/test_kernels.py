@@ -159,3 +159,36 @@ def test_graded_spacing():
     hy = np.diff(y)
     np.testing.assert_allclose(hy, hy[::-1])
     assert hy.max() / hy.min() == pytest.approx(3.0)
+
+
+def test_tangent_probe_matches_single_column_differences():
+    """The coloured finite differences give every column of the tangent stiffness, at the
+    reference state (the assembled small-strain matrix) and at a deformed one."""
+    from solver.stiffness import TangentProbe
+
+    points, cells, ops, rng = _setup(seed=9)
+    k_hg = 0.1 * MATERIAL.mu0_Pa * ops.gamma_scale
+    probe = TangentProbe(cells, len(points), 2)
+    # no two nodes of a colour share a neighbour (a distance-2 colouring)
+    for c in range(probe.n_colours):
+        nodes = np.flatnonzero(probe.colour == c)
+        touched = np.concatenate([np.unique(cells[(cells == n).any(axis=1)]) for n in nodes])
+        assert len(touched) == len(np.unique(touched))
+
+    def forces(u):
+        return _kernel_forces(u, cells, ops, MATERIAL, k_hg)[1]
+
+    h = 1e-9 * points[:, 1].max()
+    K0 = probe.stiffness(forces, np.zeros_like(points), h).toarray()
+    shear = np.full(len(cells), MATERIAL.mu0_Pa)
+    bulk = np.full(len(cells), MATERIAL.bulk_modulus_Pa)
+    K_lin = assemble(cells, element_stiffness(ops, shear, bulk, k_hg), len(points)).toarray()
+    np.testing.assert_allclose(K0, K_lin, atol=1e-6 * np.abs(K_lin).max())
+    u = _random_state(points, rng)
+    Kt = probe.stiffness(forces, u, h).toarray()
+    f0 = forces(u)
+    for dof in rng.choice(np.flatnonzero(np.repeat(points[:, 0] > 0, 2)), 10, replace=False):
+        up = u.copy().ravel()
+        up[dof] += h
+        column = ((forces(up.reshape(-1, 2)) - f0) / h).ravel()
+        np.testing.assert_allclose(Kt[:, dof], column, atol=1e-9 * np.abs(Kt).max())
