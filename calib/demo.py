@@ -86,16 +86,11 @@ def run_demo(out_dir, *, workers=None, scheduler=None, progress=True, log=print,
                         progress=progress)
     written = write_fit_report(fits, campaign, out / "fit")
     save_figure(fit_plot_grid(fits), out / "fit_overview.png")
-    table = fits.table()
-    exports = {}
-    suffix = {"csv": "csv", "json": "json", "markdown": "md", "latex": "tex",
-              "abaqus": "inp", "febio": "feb"}
-    for fmt in FORMATS:
-        exports[fmt] = str(export_file(table, out / f"parameters.{suffix[fmt]}", fmt))
     timings["fit_s"] = time.perf_counter() - t0
     log(f"fitted {len(fits.fits)} layers in {fits.wall_s:.1f} s")
 
     discovery = None
+    table = fits.table()
     if discover:
         from .discover import discover_campaign, write_discovery_report
 
@@ -104,9 +99,20 @@ def run_demo(out_dir, *, workers=None, scheduler=None, progress=True, log=print,
                                       progress=progress, log=log, base=fits)
         write_discovery_report(discovery, campaign, out / "discover")
         timings["discover_s"] = time.perf_counter() - t0
+        table = discovery.parameter_table()
+
+    # the final model's table in every format (the base fit's is fit/parameters.csv)
+    exports = {}
+    suffix = {"csv": "csv", "json": "json", "markdown": "md", "latex": "tex",
+              "abaqus": "inp", "febio": "feb"}
+    for fmt in FORMATS:
+        exports[fmt] = str(export_file(table, out / f"parameters.{suffix[fmt]}", fmt))
 
     timings["total_s"] = time.perf_counter() - start
-    table_text = summary_table(fits)
+    table_text = "FE-coupled fit, one-term Ogden (base model):\n" + summary_table(fits)
+    if discovery is not None and discovery.model.effects:
+        table_text += (f"\n\nWith the discovered effect ({' + '.join(discovery.accepted)}):\n"
+                       + final_table_text(table))
     summary = {
         "data": str(data),
         "out": str(out),
@@ -125,20 +131,41 @@ def run_demo(out_dir, *, workers=None, scheduler=None, progress=True, log=print,
     return summary
 
 
+def final_table_text(table) -> str:
+    """The final model's per-layer table as aligned text."""
+    columns = [c for c in table.columns if c not in ("model", "mu_alpha_correlation",
+                                                    "n_cycles")]
+    head = "".join(f"{c:>14}" if i else f"{c:<6}" for i, c in enumerate(columns))
+    rows = [head, "-" * len(head)]
+    for _, r in table.iterrows():
+        cells = []
+        for i, c in enumerate(columns):
+            v = r[c]
+            if i == 0:
+                cells.append(f"{v:<6}")
+            elif isinstance(v, float):
+                cells.append(f"{v:>14.4g}")
+            else:
+                cells.append(f"{v!s:>14}")
+        rows.append("".join(cells))
+    return "\n".join(rows)
+
+
 def _summary_markdown(summary: dict, table_text: str) -> str:
     lines = [
         "# calib demo: the embedded Sylgard 527 campaign",
         "",
         f"Data: `{summary['data']}` ({summary['cycles']} loading cycles).",
         "",
-        "## Per-layer Ogden parameters (FE-coupled fit, bonded platens, nu = 0.499)",
+        "## Per-layer Ogden parameters (FE-coupled fit, bonded platens)",
         "",
         "```",
         table_text,
         "```",
         "",
-        "Exports: " + ", ".join(f"[{k}]({Path(v).name})"
-                                for k, v in summary["outputs"]["exports"].items()),
+        "Exports of the final model's table: " + ", ".join(
+            f"[{k}]({Path(v).name})" for k, v in summary["outputs"]["exports"].items())
+        + "; the base fit's table is [fit/parameters.csv](fit/parameters.csv).",
         "",
         "Plots: [rate dependence (Fig. 11 of the thesis)](rates.png), "
         "[fits of all layers](fit_overview.png), per layer in [fit/](fit/).",

@@ -847,6 +847,39 @@ class DiscoveryResult:
     wall_s: float
     n_solves: int
 
+    def parameter_table(self, nu: float = 0.499):
+        """Per-layer parameters of the final model as a ``parameters.csv`` table.
+
+        ``model`` is ``ogden`` (``ogden2`` with a second term, ``+prony1`` with a Prony
+        series); effect parameters that are not material constants (``friction``,
+        ``offset_mm``, ``compliance_mm_per_N``, ``softening``) are extra columns.
+        """
+        import pandas as pd
+
+        effects = {e.name: e.report(t) for e, t in zip(self.model.effects, self.model.theta)}
+        rows = []
+        for layer, d in sorted(self.per_layer.items()):
+            mu, alpha = d["mu_Pa_after"], d["alpha_after"]
+            row = {"layer": layer, "model": "ogden", "mu_Pa": mu, "alpha": alpha,
+                   "nu": effects.get("compressibility", {}).get("nu", nu),
+                   "mu_stderr_Pa": d["mu_stderr_Pa_after"],
+                   "alpha_stderr": d["alpha_stderr_after"],
+                   "mu_alpha_correlation": d["mu_alpha_correlation_after"],
+                   "rms_N": d["rms_after_N"], "n_cycles": d["n_cycles"]}
+            if "second_ogden_term" in effects:
+                p = effects["second_ogden_term"]
+                r = p["fraction2"]
+                row.update(model="ogden2", mu_Pa=(1 - r) * mu, mu2_Pa=r * mu,
+                           alpha2=p["alpha2"])
+            if "rate_dependence" in effects:
+                row["model"] += "+prony1"
+                row.update(effects["rate_dependence"])
+            for name in ("platen_slip", "contact_offset", "machine_compliance",
+                         "preconditioning"):
+                row.update(effects.get(name, {}))
+            rows.append(row)
+        return pd.DataFrame(rows)
+
     def to_dict(self) -> dict:
         """The ``calib discover --json`` object (shared/CLI.md) plus details."""
         candidates = self.rounds[0] if self.rounds else []
@@ -1064,12 +1097,19 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
         before = ctx.fit.predicted[ctx.data.valid]
         chi2, mu, alpha, fast = fits_after[ctx.layer]
         after = (_direct_prediction(ctx, accepted, mu, alpha) if accepted.effects else before)
+        if accepted.effects:
+            mu_se, alpha_se, corr = _layer_uncertainty(ctx, accepted, mu, alpha)
+        else:
+            mu_se, alpha_se = ctx.fit.mu_stderr_Pa, ctx.fit.alpha_stderr
+            corr = ctx.fit.mu_alpha_correlation
         predictions[ctx.layer] = {"before": before, "after": after, "fast": fast}
         rb = float(np.sqrt(np.mean((before - ctx.y) ** 2)))
         ra = float(np.sqrt(np.mean((after - ctx.y) ** 2)))
         per_layer[ctx.layer] = {
             "mu_Pa_before": ctx.fit.mu_Pa, "alpha_before": ctx.fit.alpha,
-            "mu_Pa_after": mu, "alpha_after": alpha, "rms_before_N": rb, "rms_after_N": ra,
+            "mu_Pa_after": mu, "alpha_after": alpha, "mu_stderr_Pa_after": mu_se,
+            "alpha_stderr_after": alpha_se, "mu_alpha_correlation_after": corr,
+            "n_cycles": len(ctx.data.cycles), "rms_before_N": rb, "rms_after_N": ra,
             "heldout_rms_before_N": {k: v["per_layer"].get(ctx.layer)
                                      for k, v in heldout_base.items()},
             "heldout_rms_after_N": {k: v["per_layer"].get(ctx.layer)
@@ -1091,6 +1131,29 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
                   + sum(f.n_solves for f in base.fits.values())))
 
 
+def _layer_uncertainty(ctx: LayerContext, model: Model, mu: float, alpha: float):
+    """Standard errors of a layer's mu and alpha in the extended model (effect parameters
+    held at their campaign values), by lmfit on the fast model with the current weights."""
+    import lmfit
+
+    W = ctx.whitener(np.ones(len(ctx.y), bool))
+    params = lmfit.Parameters()
+    params.add("mu_Pa", value=mu, min=1e-3 * mu)
+    params.add("alpha", value=alpha, min=ctx.alpha_window[0], max=ctx.alpha_window[1])
+
+    def residual(p):
+        m, a = p["mu_Pa"].value, p["alpha"].value
+        U = ctx.unit(a) * np.exp(model.modification(ctx, m, a))
+        return W @ (m * U - ctx.y)
+
+    result = lmfit.minimize(residual, params, method="leastsq", nan_policy="raise", epsfcn=1e-4)
+    mu_se = result.params["mu_Pa"].stderr
+    alpha_se = result.params["alpha"].stderr
+    corr = (result.params["mu_Pa"].correl or {}).get("alpha", math.nan)
+    return (math.nan if mu_se is None else float(mu_se),
+            math.nan if alpha_se is None else float(alpha_se), float(corr))
+
+
 def _rms(contexts, fits) -> float:
     sq, n = 0.0, 0
     for ctx in contexts:
@@ -1110,7 +1173,10 @@ def write_discovery_report(result: DiscoveryResult, campaign, out_dir) -> dict:
     from .report import save_figure
 
     out = Path(out_dir)
+    from .export import write_parameters
+
     written = {
+        "parameters": str(write_parameters(result.parameter_table(), out / "parameters.csv")),
         "json": str(write_text(out / "discover.json",
                                json.dumps(result.to_dict(), indent=1, default=float))),
         "markdown": str(write_text(out / "discover.md", discovery_markdown(result))),
