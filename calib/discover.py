@@ -1,5 +1,6 @@
-r"""Discrepancy workflow: find where simulation and data disagree, name the missing effect, add
-it to the model, refit, and show the gap shrink.
+r"""Discrepancy workflow: where simulation and data disagree, and what is missing.
+
+The workflow names the missing effect, adds it to the model, refits, and shows the gap shrink.
 
 1. **Base fit.** One-term Ogden per layer, bonded platens, Poisson's ratio as assumed
    (:func:`calib.fit.fit_layer`), with its noise model: the residuals of one sample are
@@ -64,7 +65,6 @@ from .fit import (
     ForwardModel,
     LayerFit,
     OgdenUnitResponse,
-    _search_alpha,
     _varpro_mu,
     fit_campaign,
     whitener,
@@ -94,8 +94,11 @@ ALPHA_WINDOW = (2.0, 2.5)
 
 # ============================================================================ layer context
 class LayerContext:
-    """What the fast refits of one layer need: its data, base fit, alpha surrogate and noise
-    model, and per-point labels (rate, test, sample, strain level, travel)."""
+    """What the fast refits of one layer need.
+
+    Its data, base fit, alpha surrogate and noise model, and per-point labels (rate, test,
+    sample, strain level, travel).
+    """
 
     def __init__(self, fit: LayerFit, forward: ForwardModel, settings: FitSettings):
         self.fit = fit
@@ -181,8 +184,10 @@ class Effect:
         return dict(zip(self.names, (float(t) for t in theta)))
 
     def plausible(self, theta, contexts=()) -> tuple[bool, str]:
-        """Whether the parameters are physically plausible, and why not (``contexts``: the
-        layers, for effects whose grids know where the model breaks down)."""
+        """Whether the parameters are physically plausible, and why not.
+
+        ``contexts`` are the layers, for effects whose grids know where the model breaks down.
+        """
         return True, ""
 
     def key_overrides(self, theta, rate: float) -> dict:
@@ -199,9 +204,12 @@ class Effect:
 
 
 class RateDependence(Effect):
-    """A Prony term: F = mu_inf (f0 + gamma f_h(tau)), gamma = mu_1 / mu_inf; the force is
-    linear in gamma (checked: within 0.5 % of the viscous part), so one solve per (tau, rate)
-    at gamma = 1 tabulates the relative change ln(1 + gamma h(tau)), interpolated in log tau."""
+    """A Prony term on the Ogden moduli.
+
+    F = mu_inf (f0 + gamma f_h(tau)), gamma = mu_1 / mu_inf; the force is linear in gamma
+    (checked: within 0.5 % of the viscous part), so one solve per (tau, rate) at gamma = 1
+    tabulates the relative change ln(1 + gamma h(tau)), interpolated in log tau.
+    """
 
     name = "rate_dependence"
     names = ("g1", "tau1_s")
@@ -327,12 +335,15 @@ class Compressibility(_GridForwardEffect):
 
 
 class SecondOgdenTerm(Effect):
-    """A second Ogden term: mu_2 = fraction2 * mu, mu_1 = (1 - fraction2) * mu (the small-strain
-    modulus is unchanged), exponent alpha2, with mu_i alpha_i > 0 (fraction2 takes the sign of
-    alpha2). Tabulated by FE solves of the two-term law on two branches, alpha2 in
-    {-6, -4, -2.5, -1.5} and {1.5, 3, 6, 10, 14}, |fraction2| in {0.15, 0.35, 0.6}; cubic
-    interpolation between. The internal parameters are a branch coordinate t in [-1, 1]
-    (t < 0: alpha2 = -1.5 + 4.5 t; t >= 0: alpha2 = 1.5 + 12.5 t) and |fraction2|."""
+    """A second Ogden term.
+
+    mu_2 = fraction2 * mu, mu_1 = (1 - fraction2) * mu (the small-strain modulus is unchanged),
+    exponent alpha2, with mu_i alpha_i > 0 (fraction2 takes the sign of alpha2). Tabulated by FE
+    solves of the two-term law on two branches, alpha2 in {-6, -4, -2.5, -1.5} and {1.5, 3, 6,
+    10, 14}, |fraction2| in {0.15, 0.35, 0.6}; cubic interpolation between. The internal
+    parameters are a branch coordinate t in [-1, 1] (t < 0: alpha2 = -1.5 + 4.5 t; t >= 0:
+    alpha2 = 1.5 + 12.5 t) and |fraction2|.
+    """
 
     name = "second_ogden_term"
     names = ("alpha2", "fraction2")
@@ -407,8 +418,10 @@ class SecondOgdenTerm(Effect):
 
 
 class ContactOffset(Effect):
-    """The platen meets the full face ``offset_mm`` after the detected contact:
-    F_measured(d) = F(d - offset)."""
+    """The platen meets the full face ``offset_mm`` after the detected contact.
+
+    F_measured(d) = F(d - offset).
+    """
 
     name = "contact_offset"
     names = ("offset_mm",)
@@ -603,7 +616,8 @@ def _layer_refit(ctx: LayerContext, model: Model, mask: np.ndarray, alpha0: floa
 def _campaign_fit(contexts, model: Model, masks=None, warm=None):
     """Refit every layer with the model's effects at their parameters; total chi-square.
 
-    ``warm`` maps layer -> (mu, alpha) to start from and is updated with the new optimum."""
+    ``warm`` maps layer -> (mu, alpha) to start from and is updated with the new optimum.
+    """
     total = 0.0
     per_layer = {}
     for ctx in contexts:
@@ -703,9 +717,12 @@ def _structure_free_noise(ctx: LayerContext, pred: np.ndarray, mu: float, alpha:
 
 
 def _refresh_noise(contexts, model: Model) -> None:
-    """Re-estimate every layer's noise model with the extended model: the scatter between
-    samples from per-sample refits, the rest as in :func:`_structure_free_noise`, so that what
-    the accepted effect explains no longer counts as scatter."""
+    """Re-estimate every layer's noise model with the extended model.
+
+    The scatter between samples from per-sample refits, the rest as in
+    :func:`_structure_free_noise`, so that what the accepted effect explains no longer counts
+    as scatter.
+    """
     for ctx in contexts:
         per_sample = []
         for s in dict.fromkeys(ctx.sample):
@@ -751,7 +768,8 @@ def _heldout(contexts, model_of_training, folds):
 
     The chi-square whitens each layer's held-out residuals with their block of the current
     noise model, so a held-out sample's own stiffness (its random effect) is not held against
-    a model; the candidates are judged on it, the RMS is reported."""
+    a model; the candidates are judged on it, the RMS is reported.
+    """
     out = {}
     for kind, fold_list in folds.items():
         sq, chi2, n = 0.0, 0.0, 0
@@ -795,14 +813,15 @@ def _direct_prediction(ctx: LayerContext, model: Model, mu: float, alpha: float)
             ratio = np.interp(strain, ctx.data.levels, ctx.unit.mesh_ratio)
             return ctx.forward.unit_forces(key, strain * h) * ratio
 
-        force_fn = (lambda s, uf=unit_force: mu * uf(s))
+        def force_fn(s, uf=unit_force):
+            return mu * uf(s)
+
         for e, t in zip(model.effects, model.theta):
             if type(e).observe is not Effect.observe:
                 prev = force_fn
 
-                def force_fn(s, e=e, t=t, prev=prev):  # noqa: E731 - closure chain
-                    return e.observe(t, s, lambda x: prev(x) / mu, mu, info.test,
-                                     info.height_mm)
+                def force_fn(s, e=e, t=t, prev=prev, test=info.test, h=info.height_mm):
+                    return e.observe(t, s, lambda x: prev(x) / mu, mu, test, h)
         out[idx] = force_fn(ctx.level[idx])
     return out
 
@@ -1063,7 +1082,7 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
                 continue
             effect = model.effects[-1]
 
-            def model_of_training(masks, effect=effect, model=model):
+            def model_of_training(masks, effect=effect, model=model, accepted=accepted):
                 return _optimise(contexts, accepted, effect, masks, start=model.theta[-1],
                                  maxfev=60)[0]
 
@@ -1146,8 +1165,11 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
 
 
 def _layer_uncertainty(ctx: LayerContext, model: Model, mu: float, alpha: float):
-    """Standard errors of a layer's mu and alpha in the extended model (effect parameters
-    held at their campaign values), by lmfit on the fast model with the current weights."""
+    """Standard errors of a layer's mu and alpha in the extended model.
+
+    The effect parameters are held at their campaign values; lmfit on the fast model with the
+    current weights.
+    """
     import lmfit
 
     W = ctx.whitener(np.ones(len(ctx.y), bool))
@@ -1245,8 +1267,11 @@ def discovery_markdown(result: DiscoveryResult) -> str:
 
 
 def plot_residual_structure(result: DiscoveryResult):
-    """Relative residuals against strain (coloured by rate) and their cycle means against
-    test order, before and after adding the named effect."""
+    """Residual structure before and after adding the named effect.
+
+    Relative residuals against strain (coloured by rate) and their cycle means against test
+    order.
+    """
     from .report import RATE_COLOURS, _figure, _rate_colour
 
     fig = _figure(10.0, 6.5)

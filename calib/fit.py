@@ -1,5 +1,7 @@
-r"""FE-coupled Ogden fit per layer: find mu and alpha such that the explicit simulation of the
-bonded compression reproduces the measured cycles.
+r"""FE-coupled Ogden fit per layer.
+
+Find mu and alpha such that the explicit simulation of the bonded compression reproduces the
+measured cycles.
 
 The objective
 -------------
@@ -473,9 +475,11 @@ class OgdenUnitResponse:
         return self._local(alpha)(alpha, 1) * self.correction
 
     def set_correction(self, alpha: float, mesh_scale: float) -> np.ndarray:
-        """Multiply every unit force by the finer-mesh to fitting-mesh ratio of a solve at the
-        layer's median geometry and ``alpha``, as a function of strain; returns the ratio at
-        the levels (shape (n_levels,))."""
+        """Apply the discretisation correction; return it at the levels, shape (n_levels,).
+
+        Every unit force is multiplied by the finer-mesh to fitting-mesh ratio of a solve at
+        the layer's median geometry and ``alpha``, as a function of strain.
+        """
         d = float(np.median([c.diameter_mm for c in self.data.cycles]))
         h = float(np.median([c.height_mm for c in self.data.cycles]))
         key = self.key(alpha, (d, h))
@@ -496,8 +500,11 @@ def _varpro_mu(U: np.ndarray, y: np.ndarray, W: np.ndarray) -> float:
 
 def _search_alpha(cost: Callable[[float], float], step: float, guess: float,
                   bounds: tuple[float, float]) -> float:
-    """Minimise a smooth unimodal cost of alpha: walk the grid nodes downhill from ``guess``
-    until the minimum is bracketed, then Brent's method inside the bracket."""
+    """Minimise a smooth unimodal cost of alpha.
+
+    Walk the grid nodes downhill from ``guess`` until the minimum is bracketed, then Brent's
+    method inside the bracket.
+    """
     lo_k = max(1, int(math.ceil(bounds[0] / step)))
     hi_k = int(math.floor(bounds[1] / step))
     k = min(max(int(round(guess / step)), lo_k), hi_k)
@@ -626,9 +633,12 @@ def whitener(cov: np.ndarray) -> np.ndarray:
 
 def _noise_from_samples(data: LayerData, unit: OgdenUnitResponse, W0: np.ndarray,
                         alpha0: float, prepared, warnings: list) -> tuple[NoiseModel, dict]:
-    """Estimate the noise model: fit every sample on its own (same unit model), take the spread
-    of their (log mu, alpha) as the sample covariance and the residuals about each sample's own
-    fit for the cycle and level scatter."""
+    """Estimate the noise model from fits of every sample on its own.
+
+    Fit every sample with the same unit model, take the spread of their (log mu, alpha) as the
+    sample covariance and the residuals about each sample's own fit for the cycle and level
+    scatter.
+    """
     samples = np.array([c.sample for c in data.cycles])
     point_sample = samples[unit.cycle_of_point]
     per_sample = {}

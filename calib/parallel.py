@@ -25,6 +25,7 @@ class SerialExecutor(cf.Executor):
     """Runs each submitted call at once in the calling process."""
 
     def submit(self, fn, /, *args, **kwargs):
+        """Run ``fn(*args, **kwargs)`` now; return a completed future."""
         future: cf.Future = cf.Future()
         try:
             future.set_result(fn(*args, **kwargs))

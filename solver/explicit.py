@@ -193,7 +193,7 @@ class SimulationResult:
 
     @property
     def kinetic_ratio(self) -> float:
-        """Largest kinetic over stored (strain + hourglass) energy once 5 % of the travel is done."""
+        """Largest kinetic over stored (strain + hourglass) energy beyond 5 % of the travel."""
         stored = self.energy["strain_J"] + self.energy["hourglass_J"]
         later = self.displacement_mm >= 0.05 * self.displacement_mm[-1]
         return float(np.max(self.energy["kinetic_J"][later] / stored[later]))
@@ -279,8 +279,8 @@ def _nodal_update(
                 st = TOP
             if st != FREE:
                 for a in range(nz):
-                    anchor[i, a] = u[i, a] + dt * (v[i, a] - dt_avg * (f_int[i, a] / m + damp * v[i, a]))
-        uz_next = zt
+                    anchor[i, a] = u[i, a] + dt * (
+                        v[i, a] - dt_avg * (f_int[i, a] / m + damp * v[i, a]))
         if st != FREE:
             target = -X[i, nz] if st == BOTTOM else z_top - X[i, nz]
             fz = (target - zt) / scale
@@ -288,7 +288,6 @@ def _nodal_update(
             if not glued[i] and ((st == BOTTOM and fz < 0.0) or (st == TOP and fz > 0.0)):
                 st = FREE
             else:
-                uz_next = target
                 f_c[i, nz] = fz
         state[i] = st
         # tangential directions
@@ -479,7 +478,7 @@ def simulate(
     influence: str | None = None,
     influence_updates: int = 10,
 ) -> SimulationResult:
-    """Run one explicit compression test and return its force-travel curve.
+    r"""Run one explicit compression test and return its force-travel curve.
 
     Parameters
     ----------
@@ -497,7 +496,7 @@ def simulate(
     n_out : int
         Number of output points along the ramp (>= 2), at equal travel increments.
     hourglass : float
-        Hourglass stiffness coefficient :math:`\\kappa` (times the shear modulus).
+        Hourglass stiffness coefficient :math:`\kappa` (times the shear modulus).
     mass_scaling : bool
         ``True``: scale the density to reach ``quasi_static_ratio`` (and add mass to the
         smallest elements). ``False``: use the material density and the real ramp time as

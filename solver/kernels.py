@@ -93,23 +93,23 @@ _HOURGLASS = np.array([1.0, -1.0, 1.0, -1.0])
 
 
 class AxisymmetricOperators:
-    """Reference-configuration operators of the axisymmetric mean-gradient quad.
+    r"""Reference-configuration operators of the axisymmetric mean-gradient quad.
 
     Attributes
     ----------
     bbar : ndarray, shape (n_elem, 4, 2)
-        Volume-averaged gradients :math:`\\bar b_i` (1/m).
+        Volume-averaged gradients :math:`\bar b_i` (1/m).
     hbar : ndarray, shape (n_elem, 4)
-        Volume-averaged hoop operator :math:`\\bar h_i` (1/m).
+        Volume-averaged hoop operator :math:`\bar h_i` (1/m).
     volume : ndarray, shape (n_elem,)
-        Element volume :math:`\\int 2\\pi R\\,dA` (m^3).
+        Element volume :math:`\int 2\pi R\,dA` (m^3).
     node_volume : ndarray, shape (n_elem, 4)
-        :math:`\\int N_i\\,dV` (m^3), the lumped-mass share of each node.
+        :math:`\int N_i\,dV` (m^3), the lumped-mass share of each node.
     gamma : ndarray, shape (n_elem, 4)
         Flanagan-Belytschko hourglass vectors (dimensionless), orthogonal to linear fields.
     gamma_scale : ndarray, shape (n_elem,)
-        :math:`V \\sum_i |\\bar b_i|^2` (m); the hourglass stiffness is
-        :math:`\\kappa \\mu` times this.
+        :math:`V \sum_i |\bar b_i|^2` (m); the hourglass stiffness is
+        :math:`\kappa \mu` times this.
     """
 
     def __init__(self, bbar, hbar, volume, node_volume, gamma, gamma_scale):
@@ -417,13 +417,13 @@ def axisym_stiffening(
     k_ratio,  # (n_mat,) K / sum(mu) of each material
     out,  # (n_elem,) output: omega^2(current) / omega^2(reference) bound per element
 ):
-    """Bound on how much each element's highest frequency has grown since the start.
+    r"""Bound on how much each element's highest frequency has grown since the start.
 
     The element frequency scales with the current gradient operator (the element shrinks as
     it is compressed) and with the tangent p-wave modulus. The gradient operator in the
-    current configuration is :math:`\\bar b F^{-1}`; the tangent shear modulus of the Ogden
-    law along a principal direction is bounded by :math:`\\sum_i \\mu_i \\max_a
-    \\bar\\lambda_a^{\\alpha_i}` (its value at the stretches reached).
+    current configuration is :math:`\bar b F^{-1}`; the tangent shear modulus of the Ogden
+    law along a principal direction is bounded by :math:`\sum_i \mu_i \max_a
+    \bar\lambda_a^{\alpha_i}` (its value at the stretches reached).
     """
     for e in range(conn.shape[0]):
         m = mat[e]

@@ -105,8 +105,11 @@ class CompressionTest:
         return 0.0 if self.ramp == "345" else 1e-3 * self.rate_mm_per_s
 
     def output_times(self, n: int) -> np.ndarray:
-        """Output times (s): ``n`` from 0 to the end of the ramp at equal travel increments,
-        then, with a hold, ``max(10, n // 2)`` more at equal time increments over the hold."""
+        """Output times (s) along the ramp and the hold.
+
+        ``n`` from 0 to the end of the ramp at equal travel increments, then, with a hold,
+        ``max(10, n // 2)`` more at equal time increments over the hold.
+        """
         ramp = self._ramp_output_times(n)
         if self.hold_s == 0.0:
             return ramp

@@ -5,7 +5,8 @@ One convention throughout the project (Abaqus; Miller & Chinzei 2002; FElupe's `
 .. math::
 
     W = \sum_{i=1}^{N} \frac{2\mu_i}{\alpha_i^2}
-        \left(\bar\lambda_1^{\alpha_i} + \bar\lambda_2^{\alpha_i} + \bar\lambda_3^{\alpha_i} - 3\right)
+        \left(\bar\lambda_1^{\alpha_i} + \bar\lambda_2^{\alpha_i}
+              + \bar\lambda_3^{\alpha_i} - 3\right)
         + \frac{K}{2} (J - 1)^2,
     \qquad \bar\lambda_a = J^{-1/3} \lambda_a ,
 
@@ -41,6 +42,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+
 import numpy as np
 from scipy import optimize
 
@@ -50,7 +52,7 @@ __all__ = ["Ogden", "Prony", "NeoHookean", "bulk_modulus"]
 
 
 def bulk_modulus(mu_Pa: float, nu: float) -> float:
-    """Bulk modulus from the small-strain shear modulus and Poisson's ratio.
+    r"""Bulk modulus from the small-strain shear modulus and Poisson's ratio.
 
     Parameters
     ----------
@@ -62,7 +64,7 @@ def bulk_modulus(mu_Pa: float, nu: float) -> float:
     Returns
     -------
     float
-        :math:`K = 2\\mu(1+\\nu)/(3(1-2\\nu))` (Pa).
+        :math:`K = 2\mu(1+\nu)/(3(1-2\nu))` (Pa).
     """
     if not -1.0 < nu < 0.5:
         raise ValueError(f"Poisson's ratio nu={nu} must lie in (-1, 0.5)")
@@ -83,15 +85,15 @@ def _as_tuple(value, name: str) -> tuple[float, ...]:
 
 @dataclasses.dataclass(frozen=True)
 class Prony:
-    """Prony series of the isochoric relaxation (Abaqus normalisation).
+    r"""Prony series of the isochoric relaxation (Abaqus normalisation).
 
     Parameters
     ----------
     g : sequence of float
-        Relative moduli :math:`g_k = \\mu_k / \\mu_0` (dimensionless), each in [0, 1),
-        with :math:`\\sum_k g_k < 1`.
+        Relative moduli :math:`g_k = \mu_k / \mu_0` (dimensionless), each in [0, 1),
+        with :math:`\sum_k g_k < 1`.
     tau_s : sequence of float
-        Relaxation times :math:`\\tau_k` (s), positive.
+        Relaxation times :math:`\tau_k` (s), positive.
     """
 
     g: tuple[float, ...]
@@ -111,11 +113,11 @@ class Prony:
 
     @property
     def g_inf(self) -> float:
-        """Long-term fraction :math:`1 - \\sum g_k` of the instantaneous modulus."""
+        r"""Long-term fraction :math:`1 - \sum g_k` of the instantaneous modulus."""
         return 1.0 - sum(self.g)
 
     def relaxation(self, t_s) -> np.ndarray:
-        """Normalised relaxation function :math:`\\mu(t)/\\mu_0` at times ``t_s`` (s)."""
+        r"""Normalised relaxation function :math:`\mu(t)/\mu_0` at times ``t_s`` (s)."""
         t = np.asarray(t_s, dtype=float)
         out = np.full_like(t, self.g_inf)
         for gk, tk in zip(self.g, self.tau_s):
@@ -125,15 +127,15 @@ class Prony:
 
 @dataclasses.dataclass(frozen=True)
 class Ogden:
-    """N-term Ogden material, optionally hyperviscoelastic (Miller & Chinzei 2002).
+    r"""N-term Ogden material, optionally hyperviscoelastic (Miller & Chinzei 2002).
 
     Parameters
     ----------
     mu_Pa : float or sequence of float
-        Moduli :math:`\\mu_i` (Pa); their sum is the small-strain shear modulus. For a
+        Moduli :math:`\mu_i` (Pa); their sum is the small-strain shear modulus. For a
         viscoelastic material these are the long-term (relaxed) moduli.
     alpha : float or sequence of float
-        Exponents :math:`\\alpha_i` (dimensionless, non-zero), one per modulus.
+        Exponents :math:`\alpha_i` (dimensionless, non-zero), one per modulus.
     nu : float
         Small-strain Poisson's ratio of the long-term response; sets the bulk modulus.
     prony : Prony, optional
@@ -186,12 +188,12 @@ class Ogden:
 
     @property
     def mu0_Pa(self) -> float:
-        """Small-strain shear modulus :math:`\\sum_i \\mu_i` of the long-term response (Pa)."""
+        r"""Small-strain shear modulus :math:`\sum_i \mu_i` of the long-term response (Pa)."""
         return float(sum(self.mu_Pa))
 
     @property
     def instantaneous_mu_Pa(self) -> tuple[float, ...]:
-        """Instantaneous moduli :math:`\\mu_i / g_\\infty` (Pa); equal to ``mu_Pa`` if elastic."""
+        r"""Instantaneous moduli :math:`\mu_i / g_\infty` (Pa); equal to ``mu_Pa`` if elastic."""
         scale = 1.0 if self.prony is None else 1.0 / self.prony.g_inf
         return tuple(m * scale for m in self.mu_Pa)
 
@@ -202,7 +204,7 @@ class Ogden:
 
     @property
     def youngs_modulus_Pa(self) -> float:
-        """Small-strain Young's modulus :math:`2\\mu(1+\\nu)` (Pa)."""
+        r"""Small-strain Young's modulus :math:`2\mu(1+\nu)` (Pa)."""
         return 2.0 * self.mu0_Pa * (1.0 + self.nu)
 
     def with_mu_scaled(self, factor: float) -> Ogden:
@@ -273,16 +275,16 @@ class Ogden:
         return tau
 
     def uniaxial_nominal_stress(self, stretch, incompressible: bool = True) -> np.ndarray:
-        """Homogeneous uniaxial nominal (first Piola-Kirchhoff) stress (Pa), long-term.
+        r"""Homogeneous uniaxial nominal (first Piola-Kirchhoff) stress (Pa), long-term.
 
         Parameters
         ----------
         stretch : array_like
-            Axial stretch :math:`\\lambda` (compression < 1).
+            Axial stretch :math:`\lambda` (compression < 1).
         incompressible : bool
             ``True``: the closed form of the incompressible limit,
-            :math:`P = \\sum_i \\frac{2\\mu_i}{\\alpha_i}
-            (\\lambda^{\\alpha_i-1} - \\lambda^{-\\alpha_i/2-1})`.
+            :math:`P = \sum_i \frac{2\mu_i}{\alpha_i}
+            (\lambda^{\alpha_i-1} - \lambda^{-\alpha_i/2-1})`.
             ``False``: the compressible material with this ``nu``; the lateral stretch that
             makes the lateral stress vanish is found by a bracketed root search.
 
@@ -315,7 +317,7 @@ class Ogden:
 
     # ------------------------------------------------------------------ lmfit schema
     def parameters(self, vary_nu: bool = False):
-        """lmfit ``Parameters`` of this material in physical units with bounds.
+        """Lmfit ``Parameters`` of this material in physical units with bounds.
 
         Names: ``mu_Pa`` and ``alpha`` for one term; ``mu1_Pa``, ``alpha1``, ``mu2_Pa``, ...
         for several; ``nu``; ``g1``, ``tau1_s``, ... for a Prony series.
@@ -363,9 +365,9 @@ class Ogden:
 
 
 def NeoHookean(mu_Pa: float, nu: float = 0.499, **kwargs) -> Ogden:
-    """Neo-Hookean material as the one-term Ogden law with :math:`\\alpha = 2`.
+    r"""Neo-Hookean material as the one-term Ogden law with :math:`\alpha = 2`.
 
-    :math:`W = \\frac{\\mu}{2}(\\bar I_1 - 3) + \\frac{K}{2}(J-1)^2`, i.e. :math:`C_{10} = \\mu/2`.
+    :math:`W = \frac{\mu}{2}(\bar I_1 - 3) + \frac{K}{2}(J-1)^2`, i.e. :math:`C_{10} = \mu/2`.
     """
     return Ogden(mu_Pa=mu_Pa, alpha=2.0, nu=nu, **kwargs)
 

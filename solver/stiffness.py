@@ -123,7 +123,7 @@ def assemble(cells: np.ndarray, Ke: np.ndarray, n_nodes: int, dim: int = 2) -> s
 
 
 def element_max_frequency_sq(Ke: np.ndarray, element_mass: np.ndarray) -> np.ndarray:
-    """Highest eigenvalue :math:`\\omega^2` of each element against its lumped masses.
+    r"""Highest eigenvalue :math:`\omega^2` of each element against its lumped masses.
 
     Parameters
     ----------
@@ -134,7 +134,7 @@ def element_max_frequency_sq(Ke: np.ndarray, element_mass: np.ndarray) -> np.nda
     Returns
     -------
     ndarray, shape (n_elem,)
-        :math:`\\omega^2_{max}` (1/s^2).
+        :math:`\omega^2_{max}` (1/s^2).
     """
     dim = Ke.shape[1] // element_mass.shape[1]
     m = np.repeat(element_mass, dim, axis=1)  # (n_elem, n_dof_e)

@@ -84,7 +84,8 @@ def prony_convolution(t_eval, s0_of, g, tau, breakpoints=()):
         total = (1.0 - sum(g)) * s0_of(t)
         for gk, tk in zip(g, tau):
             pts = [p for p in breakpoints if 0 < p < t]
-            val, _ = quad(lambda s: np.exp(-(t - s) / tk) * rate(s), 0.0, t, points=pts or None,
+            val, _ = quad(lambda s, t=t, tk=tk: np.exp(-(t - s) / tk) * rate(s), 0.0, t,
+                          points=pts or None,
                           limit=400, epsabs=1e-9, epsrel=1e-9)
             total += gk * val
         out.append(total)
