@@ -173,3 +173,29 @@ def test_fit_cli_writes_parameters_and_plots(tmp_path, capsys):
     assert (out / "residuals_A.png").exists() and (out / "report_A.txt").exists()
     assert main(["fit", str(tmp_path / "missing"), "--out", str(out)]) == 2
     assert main(["fit", str(data), "--out", str(out), "--layers", "Z"]) == 2
+
+
+@pytest.mark.slow
+def test_round_trip_on_a_generated_clean_campaign(tmp_path):
+    """The whole path on a campaign written by the generator (its own sensor model, file
+    variants and a finer mesh) and read back by the loader. The truth of a layer is the mean
+    of its samples' drawn parameters (what the data hold; the samples scatter about the
+    layer's Table 1 values)."""
+    from calib.loaders import load_campaign
+    from experiments.generator import generate_campaign
+
+    folder = tmp_path / "clean"
+    generate_campaign(folder, scenario="clean", seed=21, layers=("B", "E"))
+    truth = json.loads((folder / "truth.json").read_text())
+    campaign = load_campaign(folder)
+    assert len(campaign.cycles) == 18
+    result = fit_campaign(campaign, progress=False)
+    for layer, fit in result.fits.items():
+        samples = [s for s in truth["samples"].values() if s["layer"] == layer]
+        mu_t = np.mean([s["mu_Pa"] for s in samples])
+        alpha_t = np.mean([s["alpha"] for s in samples])
+        assert fit.mu_Pa == pytest.approx(mu_t, rel=0.02), layer
+        assert fit.alpha == pytest.approx(alpha_t, rel=0.03), layer
+        assert abs(fit.mu_Pa - mu_t) < 2 * fit.mu_stderr_Pa, layer
+        assert abs(fit.alpha - alpha_t) < 2 * fit.alpha_stderr, layer
+        assert fit.surrogate_error < 5e-3
