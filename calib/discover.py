@@ -194,6 +194,14 @@ class Effect:
         """Forward-model changes (fields of CurveKey) of the full extended model."""
         return {}
 
+    def full_key(self, theta, key: CurveKey, rate: float) -> CurveKey:
+        """The forward solve of the extended model at ``theta`` from a base-model key."""
+        return dataclasses.replace(key, **self.key_overrides(theta, rate))
+
+    def forward_rates(self, ctx) -> list:
+        """Rates at which the effect's forward solves differ (``[None]``: rate-independent)."""
+        return [None]
+
     def observe(self, theta, strain, unit_force, mu, test, height_mm):
         """Observation-model changes: the measured force from the simulated unit curve.
 
@@ -258,6 +266,9 @@ class RateDependence(Effect):
     def key_overrides(self, theta, rate):
         p = self.report(theta)
         return {"g": (p["g1"],), "tau_s": (p["tau1_s"],), "rate_mm_per_s": rate}
+
+    def forward_rates(self, ctx):
+        return list(ctx.rates)
 
 
 class _GridForwardEffect(Effect):
@@ -410,7 +421,7 @@ class SecondOgdenTerm(Effect):
                            "edge of the searched range")
         return True, ""
 
-    def material_key(self, theta, key: CurveKey) -> CurveKey:
+    def full_key(self, theta, key: CurveKey, rate: float) -> CurveKey:
         p = self.report(theta)
         r = p["fraction2"]
         return dataclasses.replace(key, alpha=(key.alpha[0], p["alpha2"]),
@@ -545,12 +556,37 @@ class Model:
     def modification(self, ctx, mu, alpha):
         out = np.zeros(len(ctx.y))
         for e, t in zip(self.effects, self.theta):
-            out = out + e.modification(t, ctx, mu, alpha)
+            out = out + e.modification(t, ctx, mu, alpha) + _point_mesh_delta(e, ctx)
         return out
 
     @property
     def name(self) -> str:
         return "+".join(e.name for e in self.effects) or "base"
+
+
+def _mesh_delta(effect: Effect, ctx: LayerContext, rate) -> np.ndarray:
+    """Discretisation correction of an effect's modification at the levels (log), per rate."""
+    table = getattr(ctx, "mesh_delta", {}).get(effect.name)
+    if table is None:
+        return np.zeros(len(ctx.data.levels))
+    if None in table:
+        return table[None]
+    return table[min(table, key=lambda r: abs(r - rate))]
+
+
+def _point_mesh_delta(effect: Effect, ctx: LayerContext) -> np.ndarray:
+    """:func:`_mesh_delta` at every point of the layer."""
+    table = getattr(ctx, "mesh_delta", {}).get(effect.name)
+    if table is None:
+        return 0.0
+    index = np.searchsorted(ctx.data.levels, ctx.level)
+    if None in table:
+        return table[None][index]
+    out = np.empty(len(ctx.y))
+    for rate, values in table.items():
+        sel = np.isclose(ctx.rate, rate)
+        out[sel] = values[index[sel]]
+    return out
 
 
 def _layer_refit(ctx: LayerContext, model: Model, mask: np.ndarray, alpha0: float,
@@ -803,14 +839,15 @@ def _direct_prediction(ctx: LayerContext, model: Model, mu: float, alpha: float)
         if not len(idx):
             continue
         key = ctx.base_key(alpha, geometry=(info.diameter_mm, info.height_mm))
+        log_delta = np.zeros(len(ctx.data.levels))
         for e, t in zip(model.effects, model.theta):
-            key = dataclasses.replace(key, **e.key_overrides(t, info.rate_mm_per_s))
-            if isinstance(e, SecondOgdenTerm):
-                key = e.material_key(t, key)
+            key = e.full_key(t, key, info.rate_mm_per_s)
+            log_delta = log_delta + _mesh_delta(e, ctx, info.rate_mm_per_s)
+        ratio_levels = ctx.unit.mesh_ratio * np.exp(log_delta)
 
-        def unit_force(strain, key=key, h=info.height_mm):
+        def unit_force(strain, key=key, h=info.height_mm, ratio_levels=ratio_levels):
             strain = np.asarray(strain)
-            ratio = np.interp(strain, ctx.data.levels, ctx.unit.mesh_ratio)
+            ratio = np.interp(strain, ctx.data.levels, ratio_levels)
             return ctx.forward.unit_forces(key, strain * h) * ratio
 
         def force_fn(s, uf=unit_force):
@@ -933,8 +970,13 @@ class DiscoveryResult:
 
 
 def _prepare_job(fit: LayerFit, settings: FitSettings, names: Sequence[str],
-                 alpha_ref: float | None = None):
-    """Work item: the effect grids of one layer (FE solves), returned as plain attributes."""
+                 alpha_ref: float | None = None, theta=None, mesh_delta=None):
+    """Work item: the effect grids of one layer (FE solves), returned as plain attributes.
+
+    With ``theta`` (one effect's parameters, on refinement) also the effect's discretisation
+    correction: how much the finer mesh of the fit's correction changes the effect's relative
+    change of the force at ``theta``, beyond the base model's correction.
+    """
     forward = ForwardModel(mesh_scale=settings.mesh_scale)
     ctx = LayerContext(fit, forward, settings)
     if alpha_ref is not None:
@@ -943,6 +985,19 @@ def _prepare_job(fit: LayerFit, settings: FitSettings, names: Sequence[str],
     for name in names:
         make_effect(name).prepare(ctx)
     new = {k: v for k, v in vars(ctx).items() if k not in before}
+    if theta is not None and settings.mesh_correction:
+        effect = make_effect(names[0])
+        base = ctx.base_key(ctx.alpha_ref)
+        travel = ctx.data.levels * base.height_mm
+
+        def ratio(key):
+            fine = forward.curve(key, settings.mesh_correction)(travel)
+            return np.log(fine / forward.curve(key)(travel))
+
+        base_ratio = ratio(base)
+        table = {rate: ratio(effect.full_key(theta, base, rate)) - base_ratio
+                 for rate in effect.forward_rates(ctx)}
+        new["mesh_delta"] = {**(mesh_delta or {}), effect.name: table}
     if alpha_ref is None:  # first call: the alpha surrogate's nodes across the refit window
         step = settings.alpha_step
         lo, hi = ctx.alpha_window
@@ -952,7 +1007,8 @@ def _prepare_job(fit: LayerFit, settings: FitSettings, names: Sequence[str],
     return fit.layer, new, forward.n_solves
 
 
-def _prepare(contexts, settings, names, alphas, workers, scheduler, progress) -> int:
+def _prepare(contexts, settings, names, alphas, workers, scheduler, progress,
+             theta=None) -> int:
     """Compute the effect grids of every layer in parallel; returns the number of solves."""
     import concurrent.futures as cf
 
@@ -962,7 +1018,8 @@ def _prepare(contexts, settings, names, alphas, workers, scheduler, progress) ->
     by_layer = {ctx.layer: ctx for ctx in contexts}
     with executor(len(contexts), max_workers=workers, scheduler=scheduler) as pool:
         futures = [pool.submit(_prepare_job, ctx.fit, settings, list(names),
-                               None if alphas is None else alphas[ctx.layer])
+                               None if alphas is None else alphas[ctx.layer], theta,
+                               getattr(ctx, "mesh_delta", None))
                    for ctx in contexts]
         bar = None
         if progress:
@@ -1054,8 +1111,9 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
                 f"rms {1e3 * rms:7.2f} mN {effect.report(model.theta[-1])}"
                 + ("" if ok else f" (implausible: {reason})"))
         tried.sort(key=lambda cm: cm[0].delta_bic)
-        # the forward grids were computed at the base fit's alpha; redo them at the alpha of
-        # each leading candidate's own fit and polish its parameters there
+        # the forward grids were computed at the base fit's alpha on the fitting mesh; redo them
+        # at the alpha of each leading candidate's own fit, with the discretisation correction
+        # of the effect at its parameters, and polish its parameters there
         for i, (cand, model) in enumerate(tried[:TOP_CANDIDATES]):
             effect = model.effects[-1]
             if (cand.delta_bic > thresholds["delta_bic_per_cycle"] * n_cycles
@@ -1064,7 +1122,7 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
             _, fits = _campaign_fit(contexts, model)
             alphas = {layer: fit[2] for layer, fit in fits.items()}
             grid_solves += _prepare(contexts, settings, [effect.name], alphas, workers,
-                                    scheduler, False)
+                                    scheduler, False, theta=model.theta[-1])
             model, chi2 = _optimise(contexts, accepted, effect, start=model.theta[-1])
             _, fits = _campaign_fit(contexts, model)
             ok, reason = effect.plausible(model.theta[-1], contexts)

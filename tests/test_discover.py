@@ -65,8 +65,8 @@ def test_second_term_parameters_keep_the_small_strain_modulus_and_stability():
     for t in (-1.0, -0.4, 0.0, 0.3, 1.0):
         p = effect.report((t, 0.35))
         assert p["fraction2"] * p["alpha2"] > 0  # mu_2 alpha_2 > 0
-        key = effect.material_key((t, 0.35), CurveKey(alpha=(6.0,), diameter_mm=38.0,
-                                                      height_mm=24.0))
+        key = effect.full_key((t, 0.35), CurveKey(alpha=(6.0,), diameter_mm=38.0,
+                                                  height_mm=24.0), None)
         assert sum(key.fractions) == pytest.approx(1.0)  # sum mu_i = mu
         assert key.alpha == (6.0, p["alpha2"])
         assert all(f * a > 0 for f, a in zip(key.fractions, key.alpha))
