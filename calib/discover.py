@@ -59,6 +59,8 @@ from collections.abc import Sequence
 import numpy as np
 from scipy import interpolate, optimize
 
+from solver import SolverInstability
+
 from .fit import (
     CurveKey,
     FitSettings,
@@ -373,8 +375,6 @@ class SecondOgdenTerm(Effect):
         return {"alpha2": a2, "fraction2": math.copysign(theta[1], a2)}
 
     def prepare(self, ctx):
-        from solver import SolverInstability
-
         base = ctx.curve_at_strain(ctx.base_key(ctx.alpha_ref), ctx.data.levels)
         tables = []
         unstable = []
@@ -1121,8 +1121,17 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
                 continue
             _, fits = _campaign_fit(contexts, model)
             alphas = {layer: fit[2] for layer, fit in fits.items()}
-            grid_solves += _prepare(contexts, settings, [effect.name], alphas, workers,
-                                    scheduler, False, theta=model.theta[-1])
+            try:
+                grid_solves += _prepare(contexts, settings, [effect.name], alphas, workers,
+                                        scheduler, False, theta=model.theta[-1])
+            except SolverInstability as exc:
+                # the candidate's own best fit cannot be simulated: it is not a usable model
+                tried[i] = (dataclasses.replace(
+                    cand, plausible=False,
+                    reason=f"its simulation at the fitted parameters went unstable ({exc})"),
+                    model)
+                log(f"discover round {round_no + 1}: {effect.name:<20} dropped: {exc}")
+                continue
             model, chi2 = _optimise(contexts, accepted, effect, start=model.theta[-1])
             _, fits = _campaign_fit(contexts, model)
             ok, reason = effect.plausible(model.theta[-1], contexts)

@@ -30,12 +30,19 @@ Scenarios and their truth at magnitude :math:`M` (:math:`M = 1` values in bracke
     :math:`2\delta` of travel, then the bonded curve shifted by :math:`\delta`. A loader that
     takes the first rise of force as contact is off by :math:`\delta` for the rest of the curve.
 ``machine_compliance``
-    Rig and load-cell compliance :math:`c = 0.04 M` mm/N [0.04 mm/N] in series: logged
+    Rig and load-cell compliance :math:`c = 0.15 M` mm/N [0.15 mm/N] in series: logged
     travel = sample compression + :math:`c F`. The rig still stops at 30 % of the stated
-    height in logged travel, so the sample is compressed less.
+    height in logged travel, so the sample is compressed less. The moderate default is set
+    where the effect is identifiable from loading branches alone: refitting the one-term
+    law's mu and alpha absorbs a series spring almost entirely (bonded 30 % test, layer A
+    sample: the remaining residual shape is 0.13 % of the peak force at 0.04 mm/N, 0.32 %
+    at 0.1 mm/N, 0.7 % at 0.2 mm/N), so smaller compliances are named ``none``, correctly:
+    their only trace is a bias in mu and alpha.
 ``compressibility``
-    Poisson's ratio :math:`\nu = 0.499 - 0.039 M` [0.46] instead of the assumed 0.499
-    (bulk modulus from :math:`\mu` and :math:`\nu`).
+    Poisson's ratio :math:`\nu = 0.499 - 0.079 M` [0.42] instead of the assumed 0.499
+    (bulk modulus from :math:`\mu` and :math:`\nu`). As for the compliance, refitting mu
+    and alpha absorbs most of it (residual shape 0.25 % of the peak force at nu = 0.46,
+    0.43 % at 0.42), so the moderate default is the identifiable one.
 ``second_ogden_term``
     A two-term Ogden law with the same small-strain shear modulus :math:`\mu`:
     :math:`\mu_1 = (1 + 0.5 M)\mu`, :math:`\alpha_1 = \alpha + 4\min(M, 1)`,
@@ -77,8 +84,8 @@ G1_UNIT = 0.6
 TAU1_S = 0.5
 FRICTION_UNIT = 0.15
 OFFSET_UNIT_MM = 0.3
-COMPLIANCE_UNIT_MM_PER_N = 0.04
-NU_DROP_UNIT = 0.039
+COMPLIANCE_UNIT_MM_PER_N = 0.15
+NU_DROP_UNIT = 0.079
 SECOND_TERM_WEIGHT = 0.5
 SECOND_TERM_ALPHA_SHIFT = 4.0
 SECOND_TERM_ALPHA2 = -4.0
@@ -179,7 +186,7 @@ def _compressible(mu, alpha, test, M):
     nu = NU_ASSUMED - NU_DROP_UNIT * M
     if nu <= 0.0:
         raise ValueError(f"scenario 'compressibility': magnitude {M} gives Poisson's ratio "
-                         f"{nu:.3f}; it must stay positive (use M < 12.7)")
+                         f"{nu:.3f}; it must stay positive (use M < 6.3)")
     return CycleLaw(Ogden(mu_Pa=mu, alpha=alpha, nu=nu))
 
 

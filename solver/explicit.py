@@ -127,6 +127,11 @@ class SolverInstability(RuntimeError):
             f"{travel_mm:.4f} mm): {reason}{where}"
         )
 
+    def __reduce__(self):
+        # picklable with its attributes, so it crosses process pools intact
+        return (type(self), (self.reason, self.step, self.time_s, self.travel_mm,
+                             self.element))
+
 
 @dataclasses.dataclass(frozen=True)
 class SimulationResult:

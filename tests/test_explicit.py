@@ -205,3 +205,14 @@ def test_bad_inputs_are_rejected_by_name():
         CompressionTest(platen="coulomb")
     with pytest.raises(ValueError, match="mesh is"):
         simulate(MATERIAL, CompressionTest(diameter_mm=30.0), axisymmetric_cylinder(38, 24))
+
+
+def test_instability_survives_a_process_pool():
+    """Pickled (as a process pool returns it) with its where and when."""
+    import pickle
+
+    err = SolverInstability("NaN in the internal force", 12, 0.5, 1.25, element=7)
+    back = pickle.loads(pickle.dumps(err))
+    assert (back.reason, back.step, back.time_s, back.travel_mm, back.element) == (
+        "NaN in the internal force", 12, 0.5, 1.25, 7)
+    assert str(back) == str(err)
