@@ -42,7 +42,8 @@ The workflow names the missing effect, adds it to the model, refits, and shows t
    generalised chi-square improved by a threshold in both kinds of folds, and plausible
    parameter values. Accepted
    effects stay in the model and the search repeats. Thresholds were calibrated on null
-   campaigns (``experiments/null_calibration.py``) so that at most 5 % of them report an effect.
+   campaigns (``python -m experiments.confusion --null N``; the runs are committed in
+   ``experiments/results/null``) so that at most 5 % of them report an effect.
    Where the runner-up passes too and explains the data almost as well, both are named.
 4. **The gap.** The accepted model is re-evaluated with direct FE solves of every cycle (the
    full extended material and observation model) and the RMS gap before and after, on fitted
@@ -79,7 +80,7 @@ EFFECTS = ("rate_dependence", "platen_slip", "contact_offset", "machine_complian
            "compressibility", "second_ogden_term", "preconditioning")
 
 #: Acceptance thresholds, calibrated on null (``clean``) campaigns by
-#: ``experiments/null_calibration.py`` (see its output in experiments/null_calibration.json).
+#: ``python -m experiments.confusion --null N`` (its runs in ``experiments/results/null``).
 THRESHOLDS = {
     # at most this dBIC per compared cycle (negative: the extended model is better); per cycle
     # because a systematic misfit grows with the amount of data, as does a real effect
@@ -876,6 +877,7 @@ class Candidate:
     reason: str = ""
     heldout: dict | None = None
     heldout_improvement: dict | None = None
+    direct_delta_bic: float | None = None
     accepted: bool = False
 
     def to_dict(self) -> dict:
@@ -885,6 +887,8 @@ class Candidate:
             out["implausible_because"] = self.reason
         if self.heldout_improvement is not None:
             out["heldout_improvement"] = self.heldout_improvement
+        if self.direct_delta_bic is not None:
+            out["direct_delta_bic"] = self.direct_delta_bic
         out["accepted"] = self.accepted
         return out
 
@@ -1092,6 +1096,7 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
     folds = _folds(contexts)
     heldout_base = _heldout(contexts, lambda masks: Model([], []), folds)
     heldout_current = heldout_base
+    chi2_direct_current = None
     for round_no in range(max_rounds):
         remaining = [e for e in candidates_all
                      if e.name not in {a.name for a in accepted.effects}]
@@ -1166,7 +1171,26 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
                    for v in cand.heldout_improvement.values()):
                 passing.append((cand, model))
         rounds.append([c for c, _ in tried])
-        if not passing:
+        # the fast model's verdict must hold in direct FE solves of the extended model (it
+        # combines effects multiplicatively and tabulates them at one alpha and geometry)
+        confirmed = []
+        for cand, model in passing:
+            chi2_direct = _direct_chi2(contexts, model)[0]
+            if chi2_direct_current is None:
+                chi2_direct_current = _direct_chi2(contexts, accepted)[0]
+            cand.direct_delta_bic = float(chi2_direct - chi2_direct_current
+                                          + len(model.effects[-1].bounds) * math.log(n_cycles))
+            log(f"discover round {round_no + 1}: {cand.effect:<20} direct FE check: dBIC "
+                f"{cand.direct_delta_bic:.1f}")
+            if cand.direct_delta_bic <= thresholds["delta_bic_per_cycle"] * n_cycles:
+                confirmed.append((cand, model))
+                break  # the best confirmed candidate is the one accepted
+            cand.plausible = False
+            cand.reason = (f"direct FE solves do not confirm it (dBIC {cand.direct_delta_bic:.1f}"
+                           f" against {cand.delta_bic:.1f} in the fast model)")
+        passing = confirmed + [cm for cm in passing
+                               if cm[0].plausible and all(cm[0] is not c for c, _ in confirmed)]
+        if not confirmed:
             break
         best, best_model = passing[0]
         best.accepted = True
@@ -1185,6 +1209,7 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
                              model.effects[-1], masks, start=model.theta[-1], maxfev=60)[0]
 
         heldout_current = _heldout(contexts, accepted_of_training, folds)
+        chi2_direct_current = None  # recomputed under the refreshed noise model when needed
         log(f"discover: accepted {best.effect} {best.parameters}")
 
     # the gap before and after, with direct FE solves of the accepted model
@@ -1264,6 +1289,29 @@ def _rms(contexts, fits) -> float:
         sq += float(r @ r)
         n += len(r)
     return math.sqrt(sq / n)
+
+
+def _direct_chi2(contexts, model: Model) -> tuple[float, dict]:
+    """Generalised chi-square of direct FE solves of ``model`` (mu per layer re-projected).
+
+    The fast refit's mu and alpha of every layer, the full extended model solved cycle by
+    cycle (:func:`_direct_prediction`), mu re-projected by its closed form, residuals whitened
+    with the current noise model. Returns the total and the predictions per layer.
+    """
+    _, fits = _campaign_fit(contexts, model)
+    total, predictions = 0.0, {}
+    for ctx in contexts:
+        _, mu, alpha, fast = fits[ctx.layer]
+        if model.effects:
+            pred = _direct_prediction(ctx, model, mu, alpha)
+        else:
+            pred = ctx.fit.predicted[ctx.data.valid]
+        W = ctx.whitener(np.ones(len(ctx.y), bool))
+        scale = _varpro_mu(pred, ctx.y, W)  # best overall level of the direct curves
+        r = W @ (scale * pred - ctx.y)
+        total += float(r @ r)
+        predictions[ctx.layer] = pred
+    return total, predictions
 
 
 # ============================================================================ report

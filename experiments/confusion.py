@@ -70,8 +70,9 @@ def decide(candidates: list[dict], thresholds, n_cycles: int) -> str:
     """The effect named by the acceptance rules from round-1 candidate records."""
     for c in sorted(candidates, key=lambda c: c["delta_bic"]):
         gains = c.get("heldout_improvement")
-        if (c["delta_bic"] > thresholds["delta_bic_per_cycle"] * n_cycles
-                or not c["plausible"] or gains is None):
+        limit = thresholds["delta_bic_per_cycle"] * n_cycles
+        if (c["delta_bic"] > limit or not c["plausible"] or gains is None
+                or c.get("direct_delta_bic", -math.inf) > limit):
             continue
         if all(v >= thresholds["heldout_improvement"] for v in gains.values()):
             return c["effect"]
@@ -120,9 +121,14 @@ def summarise(records: list[dict]) -> str:
             c = true[0] if true else None
             gain = (min(c["heldout_improvement"].values()) if c and c.get("heldout_improvement")
                     else float("nan"))
+            held = ", ".join(f"{k} {1e3 * v:.1f} -> {1e3 * r['heldout_after'][k]:.1f}"
+                             for k, v in r["heldout_before"].items())
             lines.append(f"- {r['scenario']} seed {r['seed']}: named {r['named']}; true effect "
                          f"{c['delta_bic'] / r['n_cycles']:.1f}/cycle, gain {gain:+.3f}, "
-                         f"{c['parameters']} (truth {r['truth']})" if c else "")
+                         f"{c['parameters']} (truth {r['truth']}); RMS gap (mN) fitted "
+                         f"{1e3 * r['rms_before_N']:.1f} -> {1e3 * r['rms_after_N']:.1f}, "
+                         f"held out {held} (model of the unthresholded pick, "
+                         f"{r['named_unthresholded']})" if c else "")
     return "\n".join(lines)
 
 
