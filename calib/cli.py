@@ -244,18 +244,7 @@ def _add_inspect(sub) -> None:
 
 
 def _run_inspect(args) -> int:
-    import os
-
-    from .loaders import load_campaign
-
-    if not os.path.exists(args.data):
-        raise UsageError(f"{args.data}: no such folder")
-    if not os.path.isdir(args.data):
-        raise UsageError(f"{args.data}: not a folder")
-    try:
-        campaign = load_campaign(args.data)
-    except OSError as exc:
-        raise UsageError(f"{args.data}: {exc.strerror or exc}") from exc
+    campaign = _open_campaign(args.data)
     report = campaign.report()
     if args.json:
         for note in campaign.notes:
@@ -265,10 +254,7 @@ def _run_inspect(args) -> int:
         _print_inspect(campaign)
     log(f"{len(campaign.cycles)} cycles loaded, {len(campaign.rejected)} rejected from "
         f"{args.data}")
-    if not campaign.cycles:
-        what = (f"{len(campaign.rejected)} entries rejected" if campaign.rejected
-                else "no files found")
-        raise UsageError(f"{args.data}: no readable cycle ({what})")
+    _require_cycles(campaign, args.data)
     return EXIT_OK
 
 
@@ -416,16 +402,10 @@ _MODULUS_CONVENTIONS = {
 
 
 def _run_modulus(args) -> int:
-    import os
-
-    from .loaders import load_campaign
     from .modulus import ModulusError, cycle_modulus
     from .rates import analyse_rates, plot_rates, save_figure
 
-    if not os.path.exists(args.data):
-        raise UsageError(f"{args.data}: no such folder")
-    if not os.path.isdir(args.data):
-        raise UsageError(f"{args.data}: not a folder")
+    _check_folder(args.data)
     if not (math.isfinite(args.nu) and -1.0 < args.nu < 0.5):
         raise UsageError(f"--nu {args.nu}: Poisson's ratio must lie in (-1, 0.5)")
     if not (math.isfinite(args.alpha) and args.alpha != 0.0):
@@ -435,16 +415,7 @@ def _run_modulus(args) -> int:
             raise UsageError(f"--{name} {getattr(args, name)}: must lie in (0, 1)")
     if args.plot and not args.plot.lower().endswith(".png"):
         raise UsageError(f"--plot {args.plot}: the figure is written as PNG; name it *.png")
-    try:
-        campaign = load_campaign(args.data)
-    except OSError as exc:
-        raise UsageError(f"{args.data}: {exc.strerror or exc}") from exc
-    for r in campaign.rejected:
-        log(f"rejected {r.file}: {r.reason}")
-    if not campaign.cycles:
-        what = (f"{len(campaign.rejected)} entries rejected" if campaign.rejected
-                else "no files found")
-        raise UsageError(f"{args.data}: no readable cycle ({what})")
+    campaign = _load_campaign_arg(args.data)
 
     start = time.perf_counter()
     results = []
@@ -551,26 +522,41 @@ def _print_modulus(results, analysis, rejected) -> None:
 
 
 # ---------------------------------------------------------------------------- shared
-def _load_campaign_arg(path: str):
-    """Load the campaign folder named on the command line, or raise UsageError (exit 2)."""
+def _check_folder(path: str) -> None:
+    """Raise UsageError (exit 2) unless ``path`` is an existing folder."""
     import os
-
-    from .loaders import load_campaign
 
     if not os.path.exists(path):
         raise UsageError(f"{path}: no such folder")
     if not os.path.isdir(path):
         raise UsageError(f"{path}: not a folder")
+
+
+def _open_campaign(path: str):
+    """Load the campaign folder named on the command line; unreadable: UsageError (exit 2)."""
+    from .loaders import load_campaign
+
+    _check_folder(path)
     try:
-        campaign = load_campaign(path)
+        return load_campaign(path)
     except OSError as exc:
         raise UsageError(f"{path}: {exc.strerror or exc}") from exc
-    for r in campaign.rejected:
-        log(f"rejected {r.file}: {r.reason}")
+
+
+def _require_cycles(campaign, path: str) -> None:
+    """Raise UsageError (exit 2) if no cycle of the campaign could be read."""
     if not campaign.cycles:
         what = (f"{len(campaign.rejected)} entries rejected" if campaign.rejected
                 else "no files found")
         raise UsageError(f"{path}: no readable cycle ({what})")
+
+
+def _load_campaign_arg(path: str):
+    """Load the campaign, log its rejections, require a readable cycle (else exit 2)."""
+    campaign = _open_campaign(path)
+    for r in campaign.rejected:
+        log(f"rejected {r.file}: {r.reason}")
+    _require_cycles(campaign, path)
     return campaign
 
 
