@@ -3,9 +3,13 @@
 Every numba kernel in :mod:`solver` is decorated with :data:`njit` from here, so the flags are
 set in one place:
 
-- ``cache=True``: compiled machine code is stored beside the sources (or in
-  ``NUMBA_CACHE_DIR``) and reused by later processes. Numba's cache does not notice changes in
-  *other* files a kernel calls into; CI therefore runs with a fresh ``NUMBA_CACHE_DIR``.
+- ``cache=True``: compiled machine code is reused by later processes. Numba's cache checks
+  only the time stamp of the file that defines a kernel, not of the files it calls into or
+  inlines from, and a stale entry can crash the process (a segmentation fault after an edit
+  of :mod:`solver.kernels` was seen here). Unless the user sets ``NUMBA_CACHE_DIR``, the
+  cache therefore lives in a folder named by a hash of every source file of this package
+  (under ``$XDG_CACHE_HOME``, default ``~/.cache``, in ``ogden-calib/numba``): any change of
+  the solver starts a fresh cache. CI sets its own fresh ``NUMBA_CACHE_DIR``.
 - ``fastmath=False``: the kernels compare stretches for equality (repeated principal stretches)
   and check for NaN; fast-math would license the compiler to drop both.
 - ``error_model="numpy"``: division by zero gives inf/NaN (which the time loop detects and
@@ -20,7 +24,9 @@ which the tests use once to check the kernels against their NumPy twins without 
 from __future__ import annotations
 
 import functools
+import hashlib
 import os
+from pathlib import Path
 
 # The parallel kernels join their threads twice per time step (elements, then nodes). With
 # OpenMP's default active waiting, a thread that finishes first spins; on a machine shared
@@ -30,7 +36,25 @@ import os
 # setting of the user's wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+
+def _source_keyed_cache_dir(package: Path = Path(__file__).parent) -> str:
+    """Cache folder named by the hash of the package's sources (see the module notes)."""
+    digest = hashlib.sha256()
+    for path in sorted(package.glob("*.py")):
+        digest.update(path.name.encode())
+        digest.update(path.read_bytes())
+    root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return str(root / "ogden-calib" / "numba" / digest.hexdigest()[:16])
+
+
+if not os.environ.get("NUMBA_CACHE_DIR"):
+    os.environ["NUMBA_CACHE_DIR"] = _source_keyed_cache_dir()
+
 import numba  # noqa: E402
+
+# numba reads NUMBA_CACHE_DIR when it is first imported; if the user's code imported it
+# before this module, set its configuration too (read when each kernel is decorated)
+numba.config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]
 
 #: Decorator for every kernel in the package.
 njit = functools.partial(numba.njit, cache=True, fastmath=False, error_model="numpy", nogil=True)

@@ -8,6 +8,7 @@ from solver.materials import Ogden
 from solver.mesh import axisymmetric_cylinder, graded_spacing
 from solver.stiffness import assemble, element_stiffness
 
+from .checks import assert_energy_gradient
 from .reference import axisym_energy_numpy, axisym_forces_numpy, distorted_axisym_mesh
 
 MATERIAL = Ogden(mu_Pa=1875.0, alpha=4.9, nu=0.49)
@@ -78,15 +79,8 @@ def test_forces_are_the_energy_gradient():
                                np.array([K]))
         return W + Whg
 
-    h = 1e-9
-    for node in rng.choice(np.flatnonzero(points[:, 0] > 0), 12, replace=False):
-        for a in range(2):
-            up, dn = u.copy(), u.copy()
-            up[node, a] += h
-            dn[node, a] -= h
-            fd = (energy(up) - energy(dn)) / (2 * h)
-            # rounding of the energy sum (~1e-16 * W / h) bounds the finite difference error
-            assert f[node, a] == pytest.approx(fd, abs=1e-6 * np.abs(f).max())
+    assert_energy_gradient(f, energy, u,
+                           rng.choice(np.flatnonzero(points[:, 0] > 0), 12, replace=False))
 
 
 @pytest.mark.parametrize("stretch", [(0.7, 1.18), (1.0, 1.0), (1.1, 0.8)])
@@ -192,3 +186,22 @@ def test_tangent_probe_matches_single_column_differences():
         up[dof] += h
         column = ((forces(up.reshape(-1, 2)) - f0) / h).ravel()
         np.testing.assert_allclose(Kt[:, dof], column, atol=1e-9 * np.abs(Kt).max())
+
+
+def test_jit_cache_folder_follows_every_solver_source(tmp_path, monkeypatch):
+    """An edit of any solver file (not only the kernel's own) selects a fresh numba cache."""
+    import shutil
+    from pathlib import Path
+
+    import solver
+    from solver._jit import _source_keyed_cache_dir
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    package = tmp_path / "solver"
+    shutil.copytree(Path(solver.__file__).parent, package,
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    first = _source_keyed_cache_dir(package)
+    assert first.startswith(str(tmp_path / "cache" / "ogden-calib" / "numba"))
+    assert _source_keyed_cache_dir(package) == first
+    (package / "materials.py").write_text((package / "materials.py").read_text() + "\n# edit\n")
+    assert _source_keyed_cache_dir(package) != first
