@@ -1099,6 +1099,7 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
     heldout_base = _heldout(contexts, lambda masks: Model([], []), folds)
     heldout_current = heldout_base
     chi2_direct_current = None
+    limit = thresholds["delta_bic_per_cycle"] * n_cycles  # dBIC an accepted effect must reach
     for round_no in range(max_rounds):
         remaining = [e for e in candidates_all
                      if e.name not in {a.name for a in accepted.effects}]
@@ -1123,8 +1124,7 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
         # of the effect at its parameters, and polish its parameters there
         for i, (cand, model) in enumerate(tried[:TOP_CANDIDATES]):
             effect = model.effects[-1]
-            if (cand.delta_bic > thresholds["delta_bic_per_cycle"] * n_cycles
-                    or type(effect).prepare is Effect.prepare):
+            if cand.delta_bic > limit or type(effect).prepare is Effect.prepare:
                 continue
             _, fits = _campaign_fit(contexts, model)
             alphas = {layer: fit[2] for layer, fit in fits.items()}
@@ -1151,8 +1151,7 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
         tried.sort(key=lambda cm: cm[0].delta_bic)
         passing = []
         for cand, model in tried[:TOP_CANDIDATES]:
-            if (cand.delta_bic > thresholds["delta_bic_per_cycle"] * n_cycles
-                    or not cand.plausible):
+            if cand.delta_bic > limit or not cand.plausible:
                 continue
             effect = model.effects[-1]
 
@@ -1175,29 +1174,32 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
         rounds.append([c for c, _ in tried])
         # the fast model's verdict must hold in direct FE solves of the extended model (it
         # combines effects multiplicatively and tabulates them at one alpha and geometry)
-        confirmed = []
-        for cand, model in passing:
-            chi2_direct = _direct_chi2(contexts, model)
-            if chi2_direct_current is None:
-                chi2_direct_current = _direct_chi2(contexts, accepted)
-            cand.direct_delta_bic = float(chi2_direct - chi2_direct_current
+        if passing and chi2_direct_current is None:
+            chi2_direct_current = _direct_chi2(contexts, accepted)
+
+        def confirmed(cand, model, base=chi2_direct_current, round_no=round_no):
+            cand.direct_delta_bic = float(_direct_chi2(contexts, model) - base
                                           + len(model.effects[-1].bounds) * math.log(n_cycles))
             log(f"discover round {round_no + 1}: {cand.effect:<20} direct FE check: dBIC "
                 f"{cand.direct_delta_bic:.1f}")
-            if cand.direct_delta_bic <= thresholds["delta_bic_per_cycle"] * n_cycles:
-                confirmed.append((cand, model))
-                break  # the best confirmed candidate is the one accepted
+            if cand.direct_delta_bic <= limit:
+                return True
             cand.plausible = False
             cand.reason = (f"direct FE solves do not confirm it (dBIC {cand.direct_delta_bic:.1f}"
                            f" against {cand.delta_bic:.1f} in the fast model)")
-        passing = confirmed + [cm for cm in passing
-                               if cm[0].plausible and all(cm[0] is not c for c, _ in confirmed)]
-        if not confirmed:
+            return False
+
+        # the best candidate the direct solves confirm is accepted; a runner-up that explains
+        # the data almost as well (and is confirmed too) is named beside it
+        i_best = next((i for i, (cand, model) in enumerate(passing) if confirmed(cand, model)),
+                      None)
+        if i_best is None:
             break
-        best, best_model = passing[0]
+        best, best_model = passing[i_best]
         best.accepted = True
-        for cand, _ in passing[1:]:
-            if cand.delta_bic - best.delta_bic < max(10.0, 0.1 * abs(best.delta_bic)):
+        margin = max(10.0, 0.1 * abs(best.delta_bic))
+        for cand, model in passing[i_best + 1:]:
+            if cand.delta_bic - best.delta_bic < margin and confirmed(cand, model):
                 also_possible.append(cand.effect)
         accepted = best_model
         # what the effect explains is no longer scatter: new noise model, polished parameters
