@@ -665,7 +665,6 @@ def _noise_from_samples(data: LayerData, unit: OgdenUnitResponse, W0: np.ndarray
 
 
 # ============================================================================ results
-# ============================================================================ results
 @dataclasses.dataclass(frozen=True)
 class LayerFit:
     """The fit of one layer: parameters, uncertainty, diagnostics and what it cost.
