@@ -1124,7 +1124,7 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
         # of the effect at its parameters, and polish its parameters there. A candidate already
         # implausible (at the edge of its range, no change from the null) is not refined: the
         # refinement moves its parameters by little, and these solves were a fifth of the
-        # workflow's time on the embedded campaign.
+        # workflow's time on layers A and D of the embedded campaign.
         for i, (cand, model) in enumerate(tried[:TOP_CANDIDATES]):
             effect = model.effects[-1]
             if (cand.delta_bic > limit or not cand.plausible
