@@ -1122,9 +1122,10 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
         # the forward grids were computed at the base fit's alpha on the fitting mesh; redo them
         # at the alpha of each leading candidate's own fit, with the discretisation correction
         # of the effect at its parameters, and polish its parameters there. A candidate already
-        # implausible (at the edge of its range, no change from the null) is not refined: the
-        # refinement moves its parameters by little, and these solves were a fifth of the
-        # workflow's time on layers A and D of the embedded campaign.
+        # implausible (at the edge of its range, no change from the null) is not refined: on
+        # the embedded campaign the refinement never brought one back into its plausible range
+        # (the second Ogden term stayed at the edge of its fraction), and these solves were a
+        # fifth of the workflow's time on its layers A and D.
         for i, (cand, model) in enumerate(tried[:TOP_CANDIDATES]):
             effect = model.effects[-1]
             if (cand.delta_bic > limit or not cand.plausible
