@@ -68,9 +68,9 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
 
 def decide(candidates: list[dict], thresholds, n_cycles: int) -> str:
     """The effect named by the acceptance rules from round-1 candidate records."""
+    limit = thresholds["delta_bic_per_cycle"] * n_cycles
     for c in sorted(candidates, key=lambda c: c["delta_bic"]):
         gains = c.get("heldout_improvement")
-        limit = thresholds["delta_bic_per_cycle"] * n_cycles
         if (c["delta_bic"] > limit or not c["plausible"] or gains is None
                 or c.get("direct_delta_bic", -math.inf) > limit):
             continue
