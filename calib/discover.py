@@ -348,6 +348,10 @@ class _GridForwardEffect(Effect):
 
     values: np.ndarray = np.zeros(0)
     reference: float = 0.0
+    #: values at which the discretisation correction of the effect is solved up front (at the
+    #: base alpha, finer mesh), where it is cheap and of the size of what is looked for;
+    #: otherwise only the leading candidates get it, at their fitted parameters
+    mesh_values: tuple = ()
     uses_alpha = True
 
     def overrides(self, value: float) -> dict:
@@ -369,11 +373,30 @@ class _GridForwardEffect(Effect):
             tables.append(interpolate.PchipInterpolator(self.values, np.array(rows), axis=0))
         setattr(ctx, f"{self.name}_table", (np.array(alphas), tables))
         ctx.level_index = np.searchsorted(ctx.data.levels, ctx.level)
+        scale = ctx.unit.settings.mesh_correction
+        if self.mesh_values and scale:
+            key = ctx.base_key(ctx.alpha_ref)
+            travel = ctx.data.levels * key.height_mm
+
+            def log_ratio(k):
+                return np.log(ctx.forward.curve(k, scale)(travel) / ctx.forward.curve(k)(travel))
+
+            ref = log_ratio(key)
+            values = sorted(set(self.mesh_values) | {self.reference})
+            rows = [np.zeros(len(travel)) if v == self.reference else
+                    log_ratio(ctx.base_key(ctx.alpha_ref, **self.overrides(float(v)))) - ref
+                    for v in values]
+            setattr(ctx, f"{self.name}_mesh_table",
+                    interpolate.PchipInterpolator(values, np.array(rows), axis=0))
 
     def modification(self, theta, ctx, mu, alpha):
         nodes, tables = getattr(ctx, f"{self.name}_table")
         rows = np.array([t(theta[0]) for t in tables])           # (n_alpha, n_levels)
-        return (_lagrange(nodes, alpha) @ rows)[ctx.level_index]
+        m = _lagrange(nodes, alpha) @ rows
+        mesh = getattr(ctx, f"{self.name}_mesh_table", None)
+        if mesh is not None:
+            m = m + mesh(theta[0])
+        return m[ctx.level_index]
 
     def key_overrides(self, theta, rate):
         return self.overrides(float(theta[0]))
@@ -407,16 +430,18 @@ class Compressibility(_GridForwardEffect):
 
     name = "compressibility"
     names = ("nu",)
-    bounds = ((0.40, 0.499),)
+    bounds = ((0.30, 0.499),)
     null = (0.499,)
-    values = np.array([0.40, 0.43, 0.45, 0.46, 0.47, 0.48, 0.49, 0.495, 0.499])
+    values = np.array([0.30, 0.35, 0.40, 0.43, 0.45, 0.46, 0.47, 0.48, 0.49, 0.495, 0.499])
     reference = 0.499
+    # solves of a compressible gel are cheap (the bulk wave no longer sets the time step)
+    mesh_values = (0.30, 0.40, 0.43, 0.46, 0.48)
 
     def overrides(self, value):
         return {} if value == self.reference else {"nu": value}
 
     def plausible(self, theta, contexts=()):
-        if theta[0] <= 0.405:
+        if theta[0] <= 0.305:
             return False, f"nu = {theta[0]:.3f} at the edge of the searched range"
         if theta[0] >= 0.497:
             return False, f"nu = {theta[0]:.4f}: no change from the assumed value"
@@ -646,8 +671,11 @@ class Model:
         return "+".join(e.name for e in self.effects) or "base"
 
 
-def _mesh_delta(effect: Effect, ctx: LayerContext, rate) -> np.ndarray:
+def _mesh_delta(effect: Effect, ctx: LayerContext, rate, theta=None) -> np.ndarray:
     """Discretisation correction of an effect's modification at the levels (log), per rate."""
+    up_front = getattr(ctx, f"{effect.name}_mesh_table", None)
+    if up_front is not None and theta is not None:
+        return up_front(theta[0])
     table = getattr(ctx, "mesh_delta", {}).get(effect.name)
     if table is None:
         return np.zeros(len(ctx.data.levels))
@@ -924,7 +952,7 @@ def _direct_prediction(ctx: LayerContext, model: Model, mu: float, alpha: float)
         log_delta = np.zeros(len(ctx.data.levels))
         for e, t in zip(model.effects, model.theta):
             key = e.full_key(t, key, info.rate_mm_per_s)
-            log_delta = log_delta + _mesh_delta(e, ctx, info.rate_mm_per_s)
+            log_delta = log_delta + _mesh_delta(e, ctx, info.rate_mm_per_s, t)
         ratio_levels = ctx.unit.mesh_ratio * np.exp(log_delta)
 
         def unit_force(strain, key=key, h=info.height_mm, ratio_levels=ratio_levels):
@@ -1070,8 +1098,8 @@ def _prepare_job(fit: LayerFit, settings: FitSettings, names: Sequence[str],
     for name in names:
         make_effect(name).prepare(ctx)
     new = {k: v for k, v in vars(ctx).items() if k not in before}
-    if theta is not None and settings.mesh_correction:
-        effect = make_effect(names[0])
+    effect = make_effect(names[0])
+    if theta is not None and settings.mesh_correction and not getattr(effect, "mesh_values", ()):
         base = ctx.base_key(ctx.alpha_ref)
         travel = ctx.data.levels * base.height_mm
 
