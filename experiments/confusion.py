@@ -58,6 +58,7 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
         "named_unthresholded": result.effect,
         "n_cycles": len(campaign.cycles),
         "named": decide(candidates, THRESHOLDS, len(campaign.cycles)),
+        "also_possible": decide_all(candidates, THRESHOLDS, len(campaign.cycles))[1],
         "generate_s": t_gen, "discover_s": result.wall_s, "forward_solves": result.n_solves,
     }
     if keep is not None:
@@ -68,15 +69,27 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
 
 def decide(candidates: list[dict], thresholds, n_cycles: int) -> str:
     """The effect named by the acceptance rules from round-1 candidate records."""
+    return decide_all(candidates, thresholds, n_cycles)[0]
+
+
+def decide_all(candidates: list[dict], thresholds, n_cycles: int) -> tuple[str, list[str]]:
+    """The named effect and those named beside it as equally possible (discover's rules:
+    passing too, within max(10, 10 %) of its dBIC)."""
     limit = thresholds["delta_bic_per_cycle"] * n_cycles
-    for c in sorted(candidates, key=lambda c: c["delta_bic"]):
+
+    def passes(c):
         gains = c.get("heldout_improvement")
-        if (c["delta_bic"] > limit or not c["plausible"] or gains is None
-                or c.get("direct_delta_bic", -math.inf) > limit):
-            continue
-        if all(v >= thresholds["heldout_improvement"] for v in gains.values()):
-            return c["effect"]
-    return "none"
+        return not (c["delta_bic"] > limit or not c["plausible"] or gains is None
+                    or c.get("direct_delta_bic", -math.inf) > limit
+                    or any(v < thresholds["heldout_improvement"] for v in gains.values()))
+
+    passing = [c for c in sorted(candidates, key=lambda c: c["delta_bic"]) if passes(c)]
+    if not passing:
+        return "none", []
+    best = passing[0]
+    margin = max(10.0, 0.1 * abs(best["delta_bic"]))
+    return best["effect"], [c["effect"] for c in passing[1:]
+                            if c["delta_bic"] - best["delta_bic"] < margin]
 
 
 def summarise(records: list[dict]) -> str:
@@ -123,7 +136,9 @@ def summarise(records: list[dict]) -> str:
                     else float("nan"))
             held = ", ".join(f"{k} {1e3 * v:.1f} -> {1e3 * r['heldout_after'][k]:.1f}"
                              for k, v in r["heldout_before"].items())
-            lines.append(f"- {r['scenario']} seed {r['seed']}: named {r['named']}; true effect "
+            also = decide_all(r["candidates"], THRESHOLDS, r["n_cycles"])[1]
+            named = r["named"] + (f" (equally possible: {', '.join(also)})" if also else "")
+            lines.append(f"- {r['scenario']} seed {r['seed']}: named {named}; true effect "
                          f"{c['delta_bic'] / r['n_cycles']:.1f}/cycle, gain {gain:+.3f}, "
                          f"{c['parameters']} (truth {r['truth']}); RMS gap (mN) fitted "
                          f"{1e3 * r['rms_before_N']:.1f} -> {1e3 * r['rms_after_N']:.1f}, "

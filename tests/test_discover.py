@@ -168,3 +168,32 @@ def test_fast_effect_model_agrees_with_direct_solves_away_from_the_base_alpha():
         assert change > 0.03, f"{name}: the test needs an effect of a few percent"
         points = (ctx.height == 24.0) if name == "compressibility" else slice(None)
         np.testing.assert_allclose(fast[points], direct[points], rtol=4e-3, err_msg=name)
+
+
+def test_confusion_replay_of_the_acceptance_rules():
+    """experiments.confusion decides from round-1 records with discover's rules: the best
+    passing candidate, and beside it any other passing one within max(10, 10 %) of its dBIC."""
+    from experiments.confusion import decide_all
+
+    th = {"delta_bic_per_cycle": -3.0, "heldout_improvement": 0.05}
+    gain = {"rate": 0.3, "sample": 0.2}
+
+    def cand(effect, dbic, plausible=True, gains=gain, direct=None):
+        c = {"effect": effect, "delta_bic": dbic, "plausible": plausible,
+             "heldout_improvement": gains}
+        if direct is not None:
+            c["direct_delta_bic"] = direct
+        return c
+
+    n = 18  # limit -54
+    assert decide_all([cand("a", -40.0)], th, n) == ("none", [])  # above the dBIC limit
+    assert decide_all([cand("a", -120.0, plausible=False), cand("b", -60.0)], th, n) \
+        == ("b", [])
+    assert decide_all([cand("a", -120.0, gains={"rate": 0.3, "sample": 0.01})], th, n) \
+        == ("none", [])  # one kind of fold not improved enough
+    assert decide_all([cand("a", -120.0, direct=-50.0)], th, n) == ("none", [])
+    assert decide_all([cand("a", -122.2), cand("b", -110.4), cand("c", -100.0)], th, n) \
+        == ("a", ["b"])  # within 12.2 of the best; c is 22.2 away
+    # the margin grows with the gain: 10 % of 540 is 54
+    assert decide_all([cand("a", -540.0), cand("b", -500.0)], th, n) == ("a", ["b"])
+    assert decide_all([cand("a", -540.0), cand("b", -480.0)], th, n) == ("a", [])
