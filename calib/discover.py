@@ -30,12 +30,12 @@ The workflow names the missing effect, adds it to the model, refits, and shows t
 
    For a fast refit, an effect enters as a relative change of the predicted force,
    :math:`F = \mu\, U(\alpha)\, e^{m(\theta, \alpha)}`: forward effects from FE solves on a
-   grid of the effect parameter (the layer's median geometry, each rate; one-parameter effects
-   at three alphas about the base fit's, since the effect being looked for is often what
-   biased that alpha), observation effects from the layer's own simulated curves at those
-   alphas, with the discretisation correction read where the effect moves each level. With :math:`\theta` given, every layer's mu
-   (closed form) and alpha (the alpha surrogate of the base fit) are refitted, so the shared
-   :math:`\theta` is optimised on the whole campaign.
+   grid of the effect parameter (the layer's median geometry, each rate; compressibility at
+   three alphas about the base fit's, since the effect being looked for is often what biased
+   that alpha), observation effects from the layer's own simulated curves at those alphas,
+   with the discretisation correction read where the effect moves each level. With
+   :math:`\theta` given, every layer's mu (closed form) and alpha (the alpha surrogate of the
+   base fit) are refitted, so the shared :math:`\theta` is optimised on the whole campaign.
 3. **Naming.** Candidates are ranked by the gain in generalised chi-square, expressed as
    :math:`\Delta BIC = -\Delta\chi^2 + k \ln n` with :math:`n` the number of cycles (the honest
    count of independent curves, not of points). The best few are checked on held-out data: fit
@@ -97,7 +97,8 @@ THRESHOLDS = {
 TOP_CANDIDATES = 3
 #: How far (below, above) the base fit's alpha the refits may move alpha.
 ALPHA_WINDOW = (2.0, 2.5)
-#: Alphas (offsets from the base fit's) at which one-parameter forward effects are tabulated.
+#: Alphas (offsets from the base fit's) at which compressibility and the observation effects
+#: that move a level along the curve are tabulated.
 GRID_ALPHA_OFFSETS = (-1.0, 0.0, 2.0)
 
 
