@@ -194,14 +194,19 @@ class LayerContext:
             g: [self.forward.curve(self.unit.key(a, g)) for a in alphas]
             for g in self.unit.groups})
 
-    def unit_curve(self, g, alpha: float, travel) -> np.ndarray:
-        """Unit force (N/Pa, fitting mesh) of geometry ``g`` at ``alpha`` and ``travel`` (mm).
+    def unit_curve(self, g, weights: np.ndarray, travel) -> np.ndarray:
+        """Unit force (N/Pa, fitting mesh) of geometry ``g`` at ``travel`` (mm).
 
-        Quadratic (Lagrange) interpolation between the solved alphas, held within half a unit
-        beyond them.
+        At the alpha of ``weights`` (:meth:`alpha_weights`).
         """
-        nodes, curves = self.unit_curves
-        return _lagrange(nodes, alpha) @ np.array([c(travel) for c in curves[g]])
+        return weights @ np.array([c(travel) for c in self.unit_curves[1][g]])
+
+    def alpha_weights(self, alpha: float) -> np.ndarray:
+        """Weights of the solved alphas at ``alpha`` for :meth:`unit_curve`.
+
+        Quadratic (Lagrange) interpolation, held within half a unit beyond them.
+        """
+        return _lagrange(self.unit_curves[0], alpha)
 
     def mesh_ratio(self, strain) -> np.ndarray:
         """Finer-mesh over fitting-mesh force at the given strains (see prepare_mesh_ratio)."""
@@ -560,12 +565,13 @@ class ContactOffset(Effect):
 
     def modification(self, theta, ctx, mu, alpha):
         out = np.empty(len(ctx.y))
+        w = ctx.alpha_weights(alpha)
         for g, idx in ctx.unit.groups.items():
             d = ctx.travel[idx]
             shifted = np.maximum(d - theta[0], 1e-3)
             # the discretisation correction of the point the level moves to
-            out[idx] = np.log(ctx.unit_curve(g, alpha, shifted) * ctx.mesh_ratio(shifted / g[1])
-                              / (ctx.unit_curve(g, alpha, d) * ctx.mesh_ratio(d / g[1])))
+            out[idx] = np.log(ctx.unit_curve(g, w, shifted) * ctx.mesh_ratio(shifted / g[1])
+                              / (ctx.unit_curve(g, w, d) * ctx.mesh_ratio(d / g[1])))
         return out
 
     def observe(self, theta, strain, unit_force, mu, test, height_mm):
@@ -609,6 +615,7 @@ class MachineCompliance(Effect):
 
     def modification(self, theta, ctx, mu, alpha):
         out = np.empty(len(ctx.y))
+        w = ctx.alpha_weights(alpha)
         for g, idx in ctx.unit.groups.items():
             h = g[1]
             strain = ctx.travel[idx] / h
@@ -616,7 +623,7 @@ class MachineCompliance(Effect):
             # at the current alpha (the spring's travel is the force times the compliance),
             # corrected for discretisation at the sample's own strain (see ContactOffset)
             def f(s, g=g, h=h):
-                return ctx.unit_curve(g, alpha, s * h) * ctx.mesh_ratio(s)
+                return ctx.unit_curve(g, w, s * h) * ctx.mesh_ratio(s)
 
             s = _compliant_strain(strain, f, mu, theta[0], h)
             out[idx] = np.log(f(s) / f(strain))
