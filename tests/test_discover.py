@@ -133,7 +133,7 @@ def test_discover_cli_usage_errors(tmp_path, capsys):
 
 
 def test_fast_effect_model_agrees_with_direct_solves_away_from_the_base_alpha():
-    """The refits move alpha (by about 2 when the missing effect biased the base fit); the fast
+    """The refits move alpha (by up to 2 when the missing effect biased the base fit); the fast
     model of an effect must follow: at alpha 1.5 above the base fit's, the tabulated relative
     change of a series spring, a travel offset and a compressible gel matches direct FE
     solves of the extended model (each cycle's own geometry, discretisation corrected).
@@ -142,8 +142,8 @@ def test_fast_effect_model_agrees_with_direct_solves_away_from_the_base_alpha():
     and the correction read between the comparison levels; before the tables followed alpha,
     the spring's force at 30 % was off by 5 %. The compressibility table is solved at the
     layer's median geometry, so it is compared on the cycles of that geometry (on a sample
-    1.3 % squatter it is off by up to 0.7 %: the bonded sample's loss of stiffness with nu
-    depends on its shape factor)."""
+    whose diameter over height is 1.2 % larger than the median's it was off by up to 0.7 %:
+    the bonded sample's loss of stiffness with nu depends on its shape factor)."""
     from calib.discover import LayerContext, Model, _direct_prediction, _prepare
     from calib.fit import FitSettings, ForwardModel, fit_campaign
 
