@@ -159,6 +159,16 @@ class LayerContext:
                        nu=self.unit.settings.nu, platen=self.unit.settings.platen)
         return dataclasses.replace(key, **overrides)
 
+    def grid_alphas(self, offsets) -> list:
+        """The alphas ``offsets`` about :attr:`alpha_ref`, within the refit window, sorted."""
+        lo, hi = self.alpha_window
+        return sorted({min(hi, max(lo, self.alpha_ref + d)) for d in offsets})
+
+    def finer_over_fitting(self, key: CurveKey, travel) -> np.ndarray:
+        """Force of the finer (correction) mesh over the fitting mesh's for one solve."""
+        scale = self.unit.settings.mesh_correction
+        return self.forward.curve(key, scale)(travel) / self.forward.curve(key)(travel)
+
     def prepare_mesh_ratio(self) -> None:
         """Tabulate the discretisation correction along the whole curve (one finer solve).
 
@@ -173,10 +183,8 @@ class LayerContext:
             return
         key = self.base_key(self.alpha_ref)
         strain = np.linspace(0.0, self.forward.strain_needed, 241)[1:]
-        scale = self.unit.settings.mesh_correction
-        if scale:
-            travel = strain * key.height_mm
-            ratio = self.forward.curve(key, scale)(travel) / self.forward.curve(key)(travel)
+        if self.unit.settings.mesh_correction:
+            ratio = self.finer_over_fitting(key, strain * key.height_mm)
         else:
             ratio = np.ones(len(strain))
         self.ratio_table = (strain, ratio)
@@ -188,8 +196,7 @@ class LayerContext:
         move (a series spring's force times compliance) and the force there depend on alpha,
         which the refits change (see :meth:`unit_curve`).
         """
-        lo, hi = self.alpha_window
-        alphas = sorted({min(hi, max(lo, self.alpha_ref + d)) for d in GRID_ALPHA_OFFSETS})
+        alphas = self.grid_alphas(GRID_ALPHA_OFFSETS)
         self.unit_curves = (np.array(alphas), {
             g: [self.forward.curve(self.unit.key(a, g)) for a in alphas]
             for g in self.unit.groups})
@@ -369,8 +376,7 @@ class _GridForwardEffect(Effect):
         raise NotImplementedError
 
     def prepare(self, ctx):
-        lo, hi = ctx.alpha_window
-        alphas = sorted({min(hi, max(lo, ctx.alpha_ref + d)) for d in self.alpha_offsets})
+        alphas = ctx.grid_alphas(self.alpha_offsets)
         tables = []
         for a in alphas:
             base = ctx.curve_at_strain(ctx.base_key(a), ctx.data.levels)
@@ -384,13 +390,12 @@ class _GridForwardEffect(Effect):
             tables.append(interpolate.PchipInterpolator(self.values, np.array(rows), axis=0))
         setattr(ctx, f"{self.name}_table", (np.array(alphas), tables))
         ctx.level_index = np.searchsorted(ctx.data.levels, ctx.level)
-        scale = ctx.unit.settings.mesh_correction
-        if self.mesh_values and scale:
+        if self.mesh_values and ctx.unit.settings.mesh_correction:
             key = ctx.base_key(ctx.alpha_ref)
             travel = ctx.data.levels * key.height_mm
 
             def log_ratio(k):
-                return np.log(ctx.forward.curve(k, scale)(travel) / ctx.forward.curve(k)(travel))
+                return np.log(ctx.finer_over_fitting(k, travel))
 
             ref = log_ratio(key)
             values = sorted(set(self.mesh_values) | {self.reference})
@@ -1123,8 +1128,7 @@ def _prepare_job(fit: LayerFit, settings: FitSettings, names: Sequence[str],
         travel = ctx.data.levels * base.height_mm
 
         def ratio(key):
-            fine = forward.curve(key, settings.mesh_correction)(travel)
-            return np.log(fine / forward.curve(key)(travel))
+            return np.log(ctx.finer_over_fitting(key, travel))
 
         base_ratio = ratio(base)
         table = {rate: ratio(effect.full_key(theta, base, rate)) - base_ratio
