@@ -705,11 +705,13 @@ def _run_discover(args) -> int:
               + (f" (equally possible: {', '.join(result.also_possible)})"
                  if result.also_possible else ""))
         print(f"RMS gap: {1e3 * result.rms_before_N:.2f} mN before, "
-              f"{1e3 * result.rms_after_N:.2f} mN after")
+              f"{1e3 * result.rms_after_N:.2f} mN after; systematic part "
+              f"{100 * result.systematic_before:.2f} -> {100 * result.systematic_after:.2f} %")
         for kind in result.heldout_before:
-            print(f"held-out (leave one {kind} out): "
-                  f"{1e3 * result.heldout_before[kind]['rms_N']:.2f} -> "
-                  f"{1e3 * result.heldout_after[kind]['rms_N']:.2f} mN")
+            b, a = result.heldout_before[kind], result.heldout_after[kind]
+            print(f"held-out (leave one {kind} out): {1e3 * b['rms_N']:.2f} -> "
+                  f"{1e3 * a['rms_N']:.2f} mN; systematic {100 * b['systematic']:.2f} "
+                  f"-> {100 * a['systematic']:.2f} %")
         print(f"report: {written['markdown']}")
     return EXIT_OK
 

@@ -55,6 +55,12 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
         "rms_before_N": result.rms_before_N, "rms_after_N": result.rms_after_N,
         "heldout_before": {k: v["rms_N"] for k, v in result.heldout_before.items()},
         "heldout_after": {k: v["rms_N"] for k, v in result.heldout_after.items()},
+        "systematic_before": result.systematic_before,
+        "systematic_after": result.systematic_after,
+        "heldout_systematic_before": {k: v["systematic"]
+                                      for k, v in result.heldout_before.items()},
+        "heldout_systematic_after": {k: v["systematic"]
+                                     for k, v in result.heldout_after.items()},
         "named_unthresholded": result.effect,
         "n_cycles": len(campaign.cycles),
         "named": decide(candidates, THRESHOLDS, len(campaign.cycles)),
@@ -136,13 +142,20 @@ def summarise(records: list[dict]) -> str:
                     else float("nan"))
             held = ", ".join(f"{k} {1e3 * v:.1f} -> {1e3 * r['heldout_after'][k]:.1f}"
                              for k, v in r["heldout_before"].items())
+            sys_fit = (f"{100 * r['systematic_before']:.2f} -> "
+                       f"{100 * r['systematic_after']:.2f} %"
+                       if "systematic_before" in r else "not recorded")
+            sys_held = ", ".join(f"{k} {100 * v:.2f} -> "
+                                 f"{100 * r['heldout_systematic_after'][k]:.2f} %"
+                                 for k, v in r.get("heldout_systematic_before", {}).items())
             also = decide_all(r["candidates"], THRESHOLDS, r["n_cycles"])[1]
             named = r["named"] + (f" (equally possible: {', '.join(also)})" if also else "")
             lines.append(f"- {r['scenario']} seed {r['seed']}: named {named}; true effect "
                          f"{c['delta_bic'] / r['n_cycles']:.1f}/cycle, gain {gain:+.3f}, "
                          f"{c['parameters']} (truth {r['truth']}); RMS gap (mN) fitted "
                          f"{1e3 * r['rms_before_N']:.1f} -> {1e3 * r['rms_after_N']:.1f}, "
-                         f"held out {held} (model of the unthresholded pick, "
+                         f"held out {held}; systematic part fitted {sys_fit}, held out "
+                         f"{sys_held} (model of the unthresholded pick, "
                          f"{r['named_unthresholded']})" if c else "")
     return "\n".join(lines)
 
