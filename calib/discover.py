@@ -51,7 +51,15 @@ The workflow names the missing effect, adds it to the model, refits, and shows t
    Where the runner-up passes too and explains the data almost as well, both are named.
 4. **The gap.** The accepted model is re-evaluated with direct FE solves of every cycle (the
    full extended material and observation model) and the RMS gap before and after, on fitted
-   and held-out data, is reported per layer, with residual plots before and after.
+   and held-out data, is reported per layer, with residual plots before and after. Beside the
+   RMS of all points, which the samples' own scatter, their tare and the sensor noise keep
+   from shrinking much when the effect is small, the report gives the gap's systematic part:
+   the RMS of the mean relative residual of each layer, rate and strain level.
+
+After an effect is accepted, the noise model is re-estimated with it, including the
+directions in which one sample differs from its layer (the extended model's sensitivities to
+ln mu and alpha): with the base model's directions, the refits could tilt a layer's curve
+along their difference at no cost (see ``_sensitivities``).
 """
 
 from __future__ import annotations

@@ -14,6 +14,7 @@ from calib.discover import (
     Preconditioning,
     SecondOgdenTerm,
     _compliant_strain,
+    _systematic,
     discover_campaign,
     make_effect,
 )
@@ -103,6 +104,7 @@ def test_hidden_preconditioning_is_named_and_recovered():
     for kind in result.heldout_before:
         assert result.heldout_after[kind]["rms_N"] < 0.5 * result.heldout_before[kind]["rms_N"]
     assert result.rms_after_N < 0.5 * result.rms_before_N
+    assert result.systematic_after < 0.5 * result.systematic_before
     report = json.loads(json.dumps(result.to_dict(), default=float))
     assert report["candidates"][0]["effect"] == "preconditioning"
     assert {"effect", "delta_bic", "rms_N", "parameters"} <= set(report["candidates"][0])
@@ -119,7 +121,25 @@ def test_nothing_is_named_on_clean_data():
                                log=lambda *a: None, workers=1)
     assert result.effect == "none"
     assert result.rms_after_N == result.rms_before_N
+    assert result.systematic_after == result.systematic_before
     assert math.isfinite(THRESHOLDS["delta_bic_per_cycle"])
+
+
+def test_systematic_gap_averages_out_the_samples_and_keeps_a_common_misfit():
+    """The cell means (rate x level, over the samples) of the relative residuals."""
+    from types import SimpleNamespace
+
+    rates = np.repeat([0.17, 6.0], 9)                    # 2 rates x 3 samples x 3 levels
+    levels = np.tile([0.1, 0.2, 0.3], 6)
+    sample_offset = np.tile(np.repeat([0.03, 0.0, -0.03], 3), 2)
+    model = 1.0 + 10 * levels
+    ctx = SimpleNamespace(rate=rates, level=levels, y=model * (1 + sample_offset))
+    sq, n = _systematic(ctx, model)
+    assert n == 6 and sq == pytest.approx(0.0, abs=1e-24)   # each sample's own level cancels
+    common = 0.02 * (levels == 0.3) * (rates == 6.0)      # a misfit shared by the samples
+    ctx.y = model * (1 + sample_offset + common)
+    sq, n = _systematic(ctx, model)
+    assert math.sqrt(sq / n) == pytest.approx(0.02 / math.sqrt(6), rel=1e-3)
 
 
 def test_discover_cli_usage_errors(tmp_path, capsys):
