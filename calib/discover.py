@@ -574,7 +574,22 @@ class SecondOgdenTerm(Effect):
                                    fractions=(1.0 - r, r))
 
 
-class ContactOffset(Effect):
+class _CurveReadingEffect(Effect):
+    """An observation effect that reads each level at another point of the simulated curve."""
+
+    uses_alpha = True
+
+    def prepare(self, ctx):
+        ctx.prepare_unit_curves()
+        ctx.prepare_mesh_ratio()
+
+    def alpha_span(self, ctx):
+        # the solve itself is the base model's: nothing to correct at the effect's parameters
+        nodes = ctx.unit_curves[0]
+        return float(nodes[0]), float(nodes[-1])
+
+
+class ContactOffset(_CurveReadingEffect):
     """The platen meets the full face ``offset_mm`` after the detected contact.
 
     F_measured(d) = F(d - offset).
@@ -584,17 +599,6 @@ class ContactOffset(Effect):
     names = ("offset_mm",)
     bounds = ((-1.0, 0.4),)
     null = (0.0,)
-
-    uses_alpha = True
-
-    def prepare(self, ctx):
-        ctx.prepare_unit_curves()
-        ctx.prepare_mesh_ratio()
-
-    def alpha_span(self, ctx):
-        # an observation effect does not change the solve: nothing to correct at its parameters
-        nodes = ctx.unit_curves[0]
-        return float(nodes[0]), float(nodes[-1])
 
     def modification(self, theta, ctx, mu, alpha):
         out = np.empty(len(ctx.y))
@@ -631,7 +635,7 @@ def _compliant_strain(strain_m, unit_force, mu, c_mm_per_N, height_mm, iteration
     return np.maximum(s, 1e-6)
 
 
-class MachineCompliance(Effect):
+class MachineCompliance(_CurveReadingEffect):
     """A spring in series: logged travel = sample compression + F * compliance."""
 
     name = "machine_compliance"
@@ -639,17 +643,6 @@ class MachineCompliance(Effect):
     names = ("compliance_mm_per_N",)
     bounds = ((-0.05, 0.3),)
     null = (0.0,)
-
-    uses_alpha = True
-
-    def prepare(self, ctx):
-        ctx.prepare_unit_curves()
-        ctx.prepare_mesh_ratio()
-
-    def alpha_span(self, ctx):
-        # an observation effect does not change the solve: nothing to correct at its parameters
-        nodes = ctx.unit_curves[0]
-        return float(nodes[0]), float(nodes[-1])
 
     def modification(self, theta, ctx, mu, alpha):
         out = np.empty(len(ctx.y))
@@ -1304,8 +1297,7 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
     for ctx in contexts:
         pred = ctx.fit.predicted[ctx.data.valid]
         J = np.column_stack([pred, ctx.fit.mu_Pa * ctx.unit.derivative(ctx.fit.alpha)])
-        _structure_free_noise(ctx, pred, J,
-                              ctx.fit.noise.sample_cov)
+        _structure_free_noise(ctx, pred, J, ctx.fit.noise.sample_cov)
 
     accepted = Model([], [])
     chi2_current = _campaign_fit(contexts, accepted)[0]
