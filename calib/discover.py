@@ -177,6 +177,17 @@ class LayerContext:
         scale = self.unit.settings.mesh_correction
         return self.forward.curve(key, scale)(travel) / self.forward.curve(key)(travel)
 
+    def mesh_delta_at_levels(self, key: CurveKey) -> np.ndarray:
+        """The discretisation correction of a solve beyond the base model's, (n_levels,).
+
+        ln(finer / fitting mesh force) of ``key`` minus that of the base model at
+        :attr:`alpha_ref`, at the comparison levels of the layer's median geometry.
+        """
+        base = self.base_key(self.alpha_ref)
+        travel = self.data.levels * base.height_mm
+        return (np.log(self.finer_over_fitting(key, travel))
+                - np.log(self.finer_over_fitting(base, travel)))
+
     def prepare_mesh_ratio(self) -> None:
         """Tabulate the discretisation correction along the whole curve (one finer solve).
 
@@ -408,16 +419,10 @@ class _GridForwardEffect(Effect):
         setattr(ctx, f"{self.name}_table", (np.array(alphas), tables))
         ctx.level_index = np.searchsorted(ctx.data.levels, ctx.level)
         if self.mesh_values and ctx.unit.settings.mesh_correction:
-            key = ctx.base_key(ctx.alpha_ref)
-            travel = ctx.data.levels * key.height_mm
-
-            def log_ratio(k):
-                return np.log(ctx.finer_over_fitting(k, travel))
-
-            ref = log_ratio(key)
             values = sorted(set(self.mesh_values) | {self.reference})
-            rows = [np.zeros(len(travel)) if v == self.reference else
-                    log_ratio(ctx.base_key(ctx.alpha_ref, **self.overrides(float(v)))) - ref
+            rows = [np.zeros(len(ctx.data.levels)) if v == self.reference else
+                    ctx.mesh_delta_at_levels(ctx.base_key(ctx.alpha_ref,
+                                                          **self.overrides(float(v))))
                     for v in values]
             setattr(ctx, f"{self.name}_mesh_table",
                     interpolate.PchipInterpolator(values, np.array(rows), axis=0))
@@ -992,6 +997,12 @@ def _systematic(ctx: LayerContext, predicted: np.ndarray) -> tuple[float, int]:
     return float(means @ means), len(means)
 
 
+def _pooled(cells) -> float:
+    """RMS of the cell means pooled over layers from their ``_systematic`` sums (nan if none)."""
+    cells = list(cells)
+    return math.sqrt(sum(a for a, _ in cells) / sum(b for _, b in cells)) if cells else math.nan
+
+
 def _heldout(contexts, model_of_training, folds):
     """Held-out predictions per fold kind: RMS (N), generalised chi-square, per-layer RMS.
 
@@ -1011,8 +1022,8 @@ def _heldout(contexts, model_of_training, folds):
                 held = ~masks[ctx.layer]
                 if not held.any() or ctx.layer not in fits:
                     continue
-                r = fits[ctx.layer][3][held] - ctx.y[held]
                 held_pred[ctx.layer][held] = fits[ctx.layer][3][held]
+                r = held_pred[ctx.layer][held] - ctx.y[held]
                 wr = ctx.whitener(held) @ r
                 sq += float(r @ r)
                 chi2 += float(wr @ wr)
@@ -1021,12 +1032,9 @@ def _heldout(contexts, model_of_training, folds):
                 per_layer[ctx.layer] = (a + float(r @ r), b + int(held.sum()))
         # every point is held out once per kind (a layer that could not be refitted is left
         # out of the systematic part)
-        cells = [_systematic(ctx, held_pred[ctx.layer]) for ctx in contexts
-                 if np.isfinite(held_pred[ctx.layer]).all()]
-        out[kind] = {"rms_N": math.sqrt(sq / max(n, 1)), "chi2": chi2,
-                     "systematic": (math.sqrt(sum(a for a, _ in cells)
-                                              / sum(b for _, b in cells))
-                                    if cells else math.nan),
+        systematic = _pooled(_systematic(ctx, held_pred[ctx.layer]) for ctx in contexts
+                             if np.isfinite(held_pred[ctx.layer]).all())
+        out[kind] = {"rms_N": math.sqrt(sq / max(n, 1)), "chi2": chi2, "systematic": systematic,
                      "per_layer": {k: math.sqrt(a / b) for k, (a, b) in per_layer.items()}}
     return out
 
@@ -1203,13 +1211,7 @@ def _prepare_job(fit: LayerFit, settings: FitSettings, names: Sequence[str],
     effect = make_effect(names[0])
     if theta is not None and settings.mesh_correction and not getattr(effect, "mesh_values", ()):
         base = ctx.base_key(ctx.alpha_ref)
-        travel = ctx.data.levels * base.height_mm
-
-        def ratio(key):
-            return np.log(ctx.finer_over_fitting(key, travel))
-
-        base_ratio = ratio(base)
-        table = {rate: ratio(effect.full_key(theta, base, rate)) - base_ratio
+        table = {rate: ctx.mesh_delta_at_levels(effect.full_key(theta, base, rate))
                  for rate in effect.forward_rates(ctx)}
         new["mesh_delta"] = {**(mesh_delta or {}), effect.name: table}
     if alpha_ref is None:  # first call: the alpha surrogate's nodes across the refit window
@@ -1342,9 +1344,8 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
                 continue
             _, fits = _campaign_fit(contexts, model)
             alphas = {layer: fit[2] for layer, fit in fits.items()}
-            spans = [effect.alpha_span(ctx) for ctx in contexts]
-            if all(span is not None and span[0] <= alphas[ctx.layer] <= span[1]
-                   for span, ctx in zip(spans, contexts)):
+            if all((span := effect.alpha_span(ctx)) is not None
+                   and span[0] <= alphas[ctx.layer] <= span[1] for ctx in contexts):
                 continue
             try:
                 grid_solves += _prepare(contexts, settings, [effect.name], alphas, workers,
@@ -1460,8 +1461,8 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
             "mu_Pa_after": mu, "alpha_after": alpha, "mu_stderr_Pa_after": mu_se,
             "alpha_stderr_after": alpha_se, "mu_alpha_correlation_after": corr,
             "n_cycles": len(ctx.data.cycles), "rms_before_N": rb, "rms_after_N": ra,
-            "systematic_before": math.sqrt(cells_before[-1][0] / cells_before[-1][1]),
-            "systematic_after": math.sqrt(cells_after[-1][0] / cells_after[-1][1]),
+            "systematic_before": _pooled(cells_before[-1:]),
+            "systematic_after": _pooled(cells_after[-1:]),
             "heldout_rms_before_N": {k: v["per_layer"].get(ctx.layer)
                                      for k, v in heldout_base.items()},
             "heldout_rms_after_N": {k: v["per_layer"].get(ctx.layer)
@@ -1476,10 +1477,7 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
         effect=effect, accepted=[e.name for e in accepted.effects], also_possible=also_possible,
         rounds=rounds, rms_before_N=math.sqrt(sq_before / n), rms_after_N=math.sqrt(sq_after / n),
         rms_after_fast_N=math.sqrt(sq_fast / n),
-        systematic_before=math.sqrt(sum(a for a, _ in cells_before)
-                                    / sum(b for _, b in cells_before)),
-        systematic_after=math.sqrt(sum(a for a, _ in cells_after)
-                                   / sum(b for _, b in cells_after)),
+        systematic_before=_pooled(cells_before), systematic_after=_pooled(cells_after),
         heldout_before=heldout_base,
         heldout_after=heldout_current, per_layer=per_layer, base_fits=base.fits,
         model=accepted, predictions=predictions, failed_layers=dict(base.failed),
