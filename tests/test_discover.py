@@ -51,6 +51,13 @@ def test_observation_models_against_their_definitions():
     sample = _compliant_strain(strain, unit, mu, c, h)
     np.testing.assert_allclose(sample * h + c * force, strain * h, atol=1e-8)
     np.testing.assert_allclose(force, mu * unit(sample))
+    # a negative spring has no equilibrium once it is softer than the sample's tangent:
+    # here s - 2 mu unit(s) / h peaks at 0.253 (s = 0.456), so beyond it: NaN, not a number
+    sample = _compliant_strain(strain, unit, mu, -2.0, h)
+    assert np.all(np.isnan(sample[strain > 0.254])) and np.all(np.isfinite(sample[:6]))
+    ok = np.isfinite(sample)
+    np.testing.assert_allclose(sample[ok] * h - 2.0 * mu * unit(sample[ok]), strain[ok] * h,
+                               atol=1e-7)
     # contact offset: the face is met 0.3 mm after the detected contact
     shifted = ContactOffset().observe((0.3,), strain, unit, mu, 1, h)
     np.testing.assert_allclose(shifted, mu * unit(strain - 0.3 / h))
