@@ -167,10 +167,10 @@ def test_fast_effect_model_agrees_with_direct_solves_away_from_the_base_alpha():
 
     Tolerance 0.4 % of the force: the alpha interpolation of the tables (three solved alphas)
     and the correction read between the comparison levels; before the tables followed alpha,
-    the spring's force at 30 % was off by 5 %. The compressibility table is solved at the
-    layer's median geometry, so it is compared on the cycles of that geometry (on a sample
-    whose diameter over height is 1.2 % larger than the median's it was off by up to 0.7 %:
-    the bonded sample's loss of stiffness with nu depends on its shape factor)."""
+    the spring's force at 30 % was off by 5 %. The compressibility table is solved on every
+    sample geometry (on the median geometry only, a sample whose diameter over height is
+    1.2 % larger than the median's was off by up to 0.7 %: the bonded sample's loss of
+    stiffness with nu depends on its shape factor)."""
     from calib.discover import LayerContext, Model, _direct_prediction, _prepare
     from calib.fit import FitSettings, ForwardModel, fit_campaign
 
@@ -193,8 +193,7 @@ def test_fast_effect_model_agrees_with_direct_solves_away_from_the_base_alpha():
         direct = _direct_prediction(ctx, model, mu, alpha)
         change = np.max(np.abs(direct / base_direct - 1.0))
         assert change > 0.03, f"{name}: the test needs an effect of a few percent"
-        points = (ctx.height == 24.0) if name == "compressibility" else slice(None)
-        np.testing.assert_allclose(fast[points], direct[points], rtol=4e-3, err_msg=name)
+        np.testing.assert_allclose(fast, direct, rtol=4e-3, err_msg=name)
 
 
 def test_confusion_replay_of_the_acceptance_rules():
