@@ -30,19 +30,21 @@ The workflow names the missing effect, adds it to the model, refits, and shows t
 
    For a fast refit, an effect enters as a relative change of the predicted force,
    :math:`F = \mu\, U(\alpha)\, e^{m(\theta, \alpha)}`: forward effects from FE solves on a
-   grid of the effect parameter (the layer's median geometry, each rate; compressibility at
-   four alphas about the base fit's, since the effect being looked for is often what biased
-   that alpha), observation effects from the layer's own simulated curves at those alphas,
+   grid of the effect parameter (the layer's median geometry, each rate; compressibility on
+   every sample geometry and at four alphas about the base fit's, since the effect being
+   looked for is often what biased that alpha), observation effects from the layer's own simulated curves at those alphas,
    with the discretisation correction read where the effect moves each level. With
    :math:`\theta` given, every layer's mu (closed form) and alpha (the alpha surrogate of the
    base fit) are refitted, so the shared :math:`\theta` is optimised on the whole campaign.
 3. **Naming.** Candidates are ranked by the gain in generalised chi-square, expressed as
    :math:`\Delta BIC = -\Delta\chi^2 + k \ln n` with :math:`n` the number of cycles (the honest
-   count of independent curves, not of points). The best few are checked on held-out data: fit
-   on two rates and predict the third, and leave one sample of every layer out. An effect is
-   accepted only if it passes all of: :math:`\Delta BIC` below a threshold, the held-out
-   generalised chi-square improved by a threshold in both kinds of folds, plausible
-   parameter values, and the :math:`\Delta BIC` threshold met again by direct FE solves of
+   count of independent curves, not of points). The best few plausible ones are checked on
+   held-out data: fit on two rates and predict the third, and leave one sample of every layer
+   out, under the candidate's own noise model (below), the current model refitted under the
+   same one. An effect is accepted only if it passes all of: :math:`\Delta BIC` below a
+   threshold, the held-out generalised chi-square improved by a threshold in both kinds of
+   folds while the held-out systematic gap (point 4) does not grow, plausible parameter
+   values, and the :math:`\Delta BIC` threshold met again by direct FE solves of
    the extended model (the fast model combines effects multiplicatively and tabulates them
    at one alpha and geometry; the direct solves do neither). Accepted
    effects stay in the model and the search repeats. Thresholds were calibrated on null
@@ -56,10 +58,12 @@ The workflow names the missing effect, adds it to the model, refits, and shows t
    from shrinking much when the effect is small, the report gives the gap's systematic part:
    the RMS of the mean relative residual of each layer, rate and strain level.
 
-After an effect is accepted, the noise model is re-estimated with it, including the
-directions in which one sample differs from its layer (the extended model's sensitivities to
-ln mu and alpha): with the base model's directions, the refits could tilt a layer's curve
-along their difference at no cost (see ``_sensitivities``).
+After an effect is accepted (and for a candidate's held-out check), the noise model is
+re-estimated with it, including the directions in which one sample differs from its layer
+(the extended model's sensitivities to ln mu and alpha): with the base model's directions,
+the refits could tilt a layer's curve along their difference at no cost (see
+``_sensitivities``). Effects tabulated at one alpha are tabulated again when the final
+refits move a layer's alpha by more than :data:`RETABULATE_ALPHA` from it.
 """
 
 from __future__ import annotations
