@@ -1444,11 +1444,12 @@ def _follow_alpha(contexts, accepted: Model, settings, workers, scheduler, log,
             break
         try:
             for effect, theta in todo:
-                moved = ", ".join(
-                    f"{ctx.layer} {ctx.table_alpha.get(effect.name, ctx.fit.alpha):.2f} -> "
-                    f"{alphas[ctx.layer]:.2f}" for ctx in contexts if ctx.layer in alphas)
-                log(f"discover: {effect.name} tabulated again at the refitted alphas ({moved})")
-                n_solves += _prepare(contexts, settings, [effect.name], alphas, workers,
+                # only the layers that left their tables (the others keep them)
+                moved = [ctx for ctx in contexts if ctx.layer in alphas and stale(effect, ctx)]
+                log(f"discover: {effect.name} tabulated again at the refitted alphas ("
+                    + ", ".join(f"{ctx.layer} {ctx.table_alpha.get(effect.name, ctx.fit.alpha):.2f}"
+                                f" -> {alphas[ctx.layer]:.2f}" for ctx in moved) + ")")
+                n_solves += _prepare(moved, settings, [effect.name], alphas, workers,
                                      scheduler, False, theta=theta)
         except SolverInstability as exc:
             log(f"discover: tabulating again went unstable ({exc}); the tables stay")
@@ -1782,7 +1783,7 @@ def _rms(contexts, fits) -> float:
 
 
 def _margin(delta_bic: float) -> float:
-    """dBIC within which a candidate explains the data as well as one at ``delta_bic``."""
+    """Margin of dBIC within which a candidate explains the data as well as one at ``delta_bic``."""
     return max(10.0, 0.1 * abs(delta_bic))
 
 
