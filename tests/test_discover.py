@@ -225,6 +225,13 @@ def test_confusion_replay_of_the_acceptance_rules():
     # the margin grows with the gain: 10 % of 540 is 54
     assert decide_all([cand("a", -540.0), cand("b", -500.0)], th, n) == ("a", ["b"])
     assert decide_all([cand("a", -540.0), cand("b", -480.0)], th, n) == ("a", [])
+    # within the margin, the smaller systematic gap is named first
+    a, b = cand("a", -182.0), cand("b", -180.0)
+    a["systematic"], b["systematic"] = 0.0049, 0.0041
+    assert decide_all([a, b], th, n) == ("b", ["a"])
+    c = cand("c", -100.0)
+    c["systematic"] = 0.001  # smaller gap, but not within the margin of the best
+    assert decide_all([a, b, c], th, n) == ("b", ["a"])
 
 
 @pytest.mark.slow
