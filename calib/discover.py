@@ -933,6 +933,8 @@ def _gauss_newton(ctx: LayerContext, model: Model, mask, W, Wy, mu: float, alpha
         # are strongly correlated: clipping one alone leaves the descent direction)
         shrink = min(1.0, 0.5 / max(abs(d_a), 1e-12), 0.5 * mu / max(abs(d_mu), 1e-12))
         d_mu, d_a = shrink * d_mu, shrink * d_a
+        if abs(d_a) < 1e-5 and abs(d_mu) < 1e-7 * mu:
+            return alpha, mu, True  # at the minimum, where differences are noise
         for _ in range(12):
             mu_new, a_new = mu + d_mu, min(hi, max(lo, alpha + d_a))
             g_new = predict(mu_new, a_new)
