@@ -50,7 +50,9 @@ The workflow names the missing effect, adds it to the model, refits, and shows t
    the extended model (the fast model combines effects multiplicatively and tabulates them
    at one alpha and geometry; the direct solves do neither). Candidates within
    max(10, 10 %) of the best :math:`\Delta BIC` are ranked by the systematic gap they
-   leave; the first confirmed is named, the others within the margin beside it. Accepted
+   leave; the first confirmed is named, the others within the margin beside it. Candidates
+   that gain less than a quarter of the best one's :math:`\Delta BIC` are judged only if
+   none of the better ones is accepted (:data:`LEAD_FRACTION`). Accepted
    effects stay in the model and the search repeats. Thresholds were calibrated on null
    campaigns (``python -m experiments.confusion --null N``; the runs are committed in
    ``experiments/results/null``) so that at most 5 % of them report an effect.
@@ -112,6 +114,14 @@ THRESHOLDS = {
 }
 #: Candidates checked on held-out folds per round.
 TOP_CANDIDATES = 3
+#: A candidate that passes the information criterion but gains less than this fraction of the
+#: best one's dBIC is refined, held out and checked by direct solves only if none of the
+#: better ones is accepted. The refinement at a candidate's own fitted alpha moved its dBIC by
+#: less than this on every campaign where it was logged (embedded campaign: rate dependence
+#: -2501 -> -2500, contact offset -2526 -> -2531, series spring -402 -> -362, slip -588 -> -7;
+#: compliance campaign: -438 -> -443), so such a candidate cannot come within the margin of
+#: the best; its checks were a fifth of the embedded campaign's discovery time (120 of 575 s).
+LEAD_FRACTION = 0.25
 #: How far (below, above) the base fit's alpha the refits may move alpha. Upwards as far as a
 #: missing effect can bias the base fit: a series spring of 0.3 mm/N lowers it by 2-3 (2.8 and
 #: 2.65 against 4.8 and 5.9 on generated layers A and D); with 2.5 above, the compliance
@@ -1248,6 +1258,8 @@ class Candidate:
     #: systematic gap (fraction) of its fast refit under its own noise model
     systematic: float | None = None
     accepted: bool = False
+    #: why a candidate that passed the first checks was not judged further
+    note: str = ""
 
     def to_dict(self) -> dict:
         out = {"effect": self.effect, "delta_bic": self.delta_bic, "rms_N": self.rms_N,
@@ -1260,6 +1272,8 @@ class Candidate:
             out["direct_delta_bic"] = self.direct_delta_bic
         if self.systematic is not None:
             out["systematic"] = self.systematic
+        if self.note:
+            out["note"] = self.note
         out["accepted"] = self.accepted
         return out
 
@@ -1465,6 +1479,221 @@ def _follow_alpha(contexts, accepted: Model, settings, workers, scheduler, log,
     return accepted, n_solves
 
 
+class _Round:
+    """Judging one round's candidates: refinement, held-out checks, direct confirmation.
+
+    ``tried`` holds (Candidate, Model) pairs of every candidate of the round, fitted in the
+    fast model; :meth:`run` returns the accepted pair or None and leaves in
+    :attr:`also_possible` the effects named beside it, in :attr:`grid_solves` the FE solves
+    it added.
+    """
+
+    def __init__(self, round_no, contexts, settings, workers, scheduler, log, thresholds,
+                 folds, accepted: Model, tried: list, chi2_current: float,
+                 systematic_current: float, current_of_training):
+        self.round_no = round_no
+        self.contexts = contexts
+        self.settings = settings
+        self.workers = workers
+        self.scheduler = scheduler
+        self.log = log
+        self.thresholds = thresholds
+        self.n_cycles = sum(len(ctx.data.cycles) for ctx in contexts)
+        self.limit = thresholds["delta_bic_per_cycle"] * self.n_cycles
+        self.folds = folds
+        self.accepted = accepted
+        self.tried = sorted(tried, key=lambda cm: cm[0].delta_bic)
+        self.chi2_current = chi2_current
+        self.systematic_current = systematic_current
+        self.current_of_training = current_of_training
+        self.chi2_direct_current = None
+        self.grid_solves = 0
+        self.also_possible: list[str] = []
+
+    def _log(self, effect: str, text: str) -> None:
+        self.log(f"discover round {self.round_no + 1}: {effect:<20} {text}")
+
+    def _index(self, name: str) -> int:
+        return next(i for i, (c, _) in enumerate(self.tried) if c.effect == name)
+
+    def _passes_first(self, cand: Candidate) -> bool:
+        return cand.delta_bic <= self.limit and cand.plausible
+
+    def run(self):
+        """Judge the candidates that pass the information criterion and are plausible.
+
+        First those that gain at least :data:`LEAD_FRACTION` of the best one's dBIC, the
+        others only if none of those is accepted.
+        """
+        eligible = [c for c, _ in self.tried if self._passes_first(c)]
+        if not eligible:
+            return None
+        lead = eligible[0]
+        front = [c.effect for c in eligible if c.delta_bic <= LEAD_FRACTION * lead.delta_bic]
+        behind = [c for c in eligible if c.effect not in front]
+        for c in behind:
+            c.note = (f"not judged further: dBIC {c.delta_bic:.1f} is less than "
+                      f"{LEAD_FRACTION:.0%} of {lead.effect}'s {lead.delta_bic:.1f}")
+        chosen = self.judge(front)
+        if chosen is None and behind:
+            self.log(f"discover round {self.round_no + 1}: none of {', '.join(front)} "
+                     f"accepted; judging {', '.join(c.effect for c in behind)}")
+            for c in behind:
+                c.note = ""
+            chosen = self.judge([c.effect for c in behind])
+        return chosen
+
+    def judge(self, names):
+        """Refine, check on held-out data and confirm the best of ``names``.
+
+        Returns the accepted (candidate, model) or None; those within the margin of the
+        accepted one go to :attr:`also_possible`.
+        """
+        self.refine(names[:TOP_CANDIDATES])
+        passing = [cm for cm in self.tried
+                   if cm[0].effect in names and self._passes_first(cm[0])][:TOP_CANDIDATES]
+        passing = [cm for cm in passing if self.heldout(*cm)]
+        # candidates the information criterion cannot tell apart (within the margin of the
+        # best) are ranked by how much of the systematic gap they close: the chi-square of
+        # two near-degenerate shapes differs by what the noise model forgives, the gap by
+        # what they explain (compressibility campaign: a series spring, dBIC -182, against
+        # nu, -180; systematic gap 0.58 -> 0.49 % against 0.41 %)
+        if passing:
+            top = passing[0][0].delta_bic
+            near = [cm for cm in passing if cm[0].delta_bic - top < _margin(top)]
+            near.sort(key=lambda cm: cm[0].systematic)
+            passing = near + passing[len(near):]
+        # the best candidate the direct solves confirm is accepted; a runner-up that explains
+        # the data almost as well (and is confirmed too) is named beside it
+        i_best = next((i for i, cm in enumerate(passing) if self.confirmed(*cm)), None)
+        if i_best is None:
+            return None
+        best = passing[i_best][0]
+        for cand, model in passing[i_best + 1:]:
+            if (cand.delta_bic - best.delta_bic < _margin(best.delta_bic)
+                    and self.confirmed(cand, model)):
+                self.also_possible.append(cand.effect)
+        return passing[i_best]
+
+    def refine(self, names) -> None:
+        """Tabulate each candidate again at its own fitted alphas and polish it there.
+
+        The forward grids were computed at the base fit's alpha on the fitting mesh; they are
+        redone at the alpha of the candidate's own fit, with the discretisation correction of
+        the effect at its parameters. A candidate already implausible (at the edge of its
+        range, no change from the null) is not refined: on the embedded campaign the
+        refinement never brought one back into its plausible range (the second Ogden term
+        stayed at the edge of its fraction), and these solves were a fifth of the workflow's
+        time on its layers A and D. Nor is one whose tables already span every layer's fitted
+        alpha (see ``alpha_span``).
+        """
+        contexts = self.contexts
+        for name in names:
+            i = self._index(name)
+            cand, model = self.tried[i]
+            effect = model.effects[-1]
+            if type(effect).prepare is Effect.prepare or not self._passes_first(cand):
+                continue
+            _, fits = _campaign_fit(contexts, model)
+            alphas = {layer: fit[2] for layer, fit in fits.items()}
+            if all((span := effect.alpha_span(ctx)) is not None
+                   and span[0] <= alphas[ctx.layer] <= span[1] for ctx in contexts):
+                continue
+            try:
+                self.grid_solves += _prepare(contexts, self.settings, [effect.name], alphas,
+                                             self.workers, self.scheduler, False,
+                                             theta=model.theta[-1])
+            except SolverInstability as exc:
+                # the candidate's own best fit cannot be simulated: it is not a usable model
+                self.tried[i] = (dataclasses.replace(
+                    cand, plausible=False,
+                    reason=f"its simulation at the fitted parameters went unstable ({exc})"),
+                    model)
+                self._log(effect.name, f"dropped: {exc}")
+                continue
+            model, chi2 = _optimise(contexts, self.accepted, effect, start=model.theta[-1])
+            _, fits = _campaign_fit(contexts, model)
+            ok, reason = effect.plausible(model.theta[-1], contexts)
+            cand = Candidate(effect.name, float(chi2 - self.chi2_current + len(effect.bounds)
+                                                * math.log(self.n_cycles)),
+                             _rms(contexts, fits), effect.report(model.theta[-1]), ok, reason)
+            self.tried[i] = (cand, model)
+            self._log(effect.name, f"refined at the fitted alpha: dBIC {cand.delta_bic:.1f} "
+                                   f"{cand.parameters}")
+        self.tried.sort(key=lambda cm: cm[0].delta_bic)
+
+    def heldout(self, cand: Candidate, model: Model) -> bool:
+        """Held-out and systematic-gap checks of one candidate; whether it passes them."""
+        contexts, accepted, effect = self.contexts, self.accepted, model.effects[-1]
+
+        def model_of_training(masks):
+            return _optimise(contexts, accepted, effect, masks, start=model.theta[-1],
+                             maxfev=60)[0]
+
+        # held out under the candidate's own noise model (samples differ along its own
+        # sensitivities, as after acceptance), the current model refitted under the same
+        # one: with the base model's directions a candidate's refits can tilt along the
+        # difference for free, and a wrong shape lowered the chi-square while moving its
+        # predictions away from every sample alike (compressibility campaign, a series
+        # spring: held-out chi2 -40 %, systematic gap 0.6 -> 1.1 %)
+        with _noise_of(contexts, model):
+            reference = _heldout(contexts, self.current_of_training, self.folds)
+            held = _heldout(contexts, model_of_training, self.folds)
+            fitted = _campaign_fit(contexts, model)[1]
+        systematic = _pooled(_systematic(ctx, fitted[ctx.layer][3]) for ctx in contexts
+                             if ctx.layer in fitted)
+        cand.systematic = systematic
+        cand.heldout = held
+        cand.heldout_improvement = {
+            kind: 1.0 - held[kind]["chi2"] / reference[kind]["chi2"] for kind in held}
+        self._log(cand.effect, "held-out RMS " + ", ".join(
+            f"{kind} {1e3 * reference[kind]['rms_N']:.1f} -> {1e3 * held[kind]['rms_N']:.1f} mN"
+            f" (chi2 {100 * cand.heldout_improvement[kind]:+.0f} %)" for kind in held))
+        # better prediction: the generalised chi-square must drop, and the systematic part of
+        # the gap (the cell means over the samples) must not grow
+        worse = [kind for kind in held if held[kind]["systematic"] > reference[kind]["systematic"]]
+        current = self.systematic_current
+        self._log(cand.effect, f"systematic gap {100 * current:.2f} -> {100 * systematic:.2f} %")
+        if systematic > current:
+            # the gap must shrink, not only the chi-square: the noise model lets a wrong shape
+            # lower the chi-square along the samples' own scatter while the mean over the
+            # samples moves away (compressibility campaign: a series spring)
+            cand.plausible = False
+            cand.reason = (f"the systematic gap grows ({100 * current:.2f} -> "
+                           f"{100 * systematic:.2f} %)")
+            self._log(cand.effect, cand.reason)
+            return False
+        if worse:
+            cand.plausible = False
+            cand.reason = ("its predictions of held-out data are further from the samples' "
+                           "mean (systematic gap " + ", ".join(
+                               f"{kind} {100 * reference[kind]['systematic']:.2f} -> "
+                               f"{100 * held[kind]['systematic']:.2f} %" for kind in worse) + ")")
+            self._log(cand.effect, cand.reason)
+            return False
+        return all(v >= self.thresholds["heldout_improvement"]
+                   for v in cand.heldout_improvement.values())
+
+    def confirmed(self, cand: Candidate, model: Model) -> bool:
+        """Whether direct FE solves of the extended model confirm the fast model's dBIC.
+
+        The fast model combines effects multiplicatively and tabulates them at one alpha and
+        geometry; the direct solves do neither.
+        """
+        if self.chi2_direct_current is None:
+            self.chi2_direct_current = _direct_chi2(self.contexts, self.accepted)
+        cand.direct_delta_bic = float(_direct_chi2(self.contexts, model)
+                                      - self.chi2_direct_current
+                                      + len(model.effects[-1].bounds) * math.log(self.n_cycles))
+        self._log(cand.effect, f"direct FE check: dBIC {cand.direct_delta_bic:.1f}")
+        if cand.direct_delta_bic <= self.limit:
+            return True
+        cand.plausible = False
+        cand.reason = (f"direct FE solves do not confirm it (dBIC {cand.direct_delta_bic:.1f} "
+                       f"against {cand.delta_bic:.1f} in the fast model)")
+        return False
+
+
 def discover_campaign(campaign, *, settings: FitSettings | None = None,
                       effects: Sequence[str] = EFFECTS, workers=None, scheduler=None,
                       progress: bool = True, log=print, thresholds: dict | None = None,
@@ -1518,8 +1747,6 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
 
     heldout_base = _heldout(contexts, current_of_training, folds)
     heldout_current = heldout_base
-    chi2_direct_current = None
-    limit = thresholds["delta_bic_per_cycle"] * n_cycles  # dBIC an accepted effect must reach
     for round_no in range(max_rounds):
         remaining = [e for e in candidates_all
                      if e.name not in {a.name for a in accepted.effects}]
@@ -1545,144 +1772,17 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
             log(f"discover round {round_no + 1}: {effect.name:<20} dBIC {delta_bic:10.1f} "
                 f"rms {1e3 * rms:7.2f} mN {effect.report(model.theta[-1])}"
                 + ("" if ok else f" (implausible: {reason})"))
-        tried.sort(key=lambda cm: cm[0].delta_bic)
-        # the forward grids were computed at the base fit's alpha on the fitting mesh; redo them
-        # at the alpha of each leading candidate's own fit, with the discretisation correction
-        # of the effect at its parameters, and polish its parameters there. A candidate already
-        # implausible (at the edge of its range, no change from the null) is not refined: on
-        # the embedded campaign the refinement never brought one back into its plausible range
-        # (the second Ogden term stayed at the edge of its fraction), and these solves were a
-        # fifth of the workflow's time on its layers A and D.
-        # Nor is one whose tables already span every layer's fitted alpha (see alpha_span).
-        # the leading candidates are the best TOP_CANDIDATES of those that pass the
-        # information criterion and are plausible
-        leading = [i for i, (cand, _) in enumerate(tried)
-                   if cand.delta_bic <= limit and cand.plausible][:TOP_CANDIDATES]
-        for i in leading:
-            cand, model = tried[i]
-            effect = model.effects[-1]
-            if type(effect).prepare is Effect.prepare:
-                continue
-            _, fits = _campaign_fit(contexts, model)
-            alphas = {layer: fit[2] for layer, fit in fits.items()}
-            if all((span := effect.alpha_span(ctx)) is not None
-                   and span[0] <= alphas[ctx.layer] <= span[1] for ctx in contexts):
-                continue
-            try:
-                grid_solves += _prepare(contexts, settings, [effect.name], alphas, workers,
-                                        scheduler, False, theta=model.theta[-1])
-            except SolverInstability as exc:
-                # the candidate's own best fit cannot be simulated: it is not a usable model
-                tried[i] = (dataclasses.replace(
-                    cand, plausible=False,
-                    reason=f"its simulation at the fitted parameters went unstable ({exc})"),
-                    model)
-                log(f"discover round {round_no + 1}: {effect.name:<20} dropped: {exc}")
-                continue
-            model, chi2 = _optimise(contexts, accepted, effect, start=model.theta[-1])
-            _, fits = _campaign_fit(contexts, model)
-            ok, reason = effect.plausible(model.theta[-1], contexts)
-            tried[i] = (Candidate(effect.name, float(chi2 - chi2_current
-                                                     + len(effect.bounds) * math.log(n_cycles)),
-                                  _rms(contexts, fits), effect.report(model.theta[-1]), ok,
-                                  reason), model)
-            log(f"discover round {round_no + 1}: {effect.name:<20} refined at the fitted alpha:"
-                f" dBIC {tried[i][0].delta_bic:.1f} {tried[i][0].parameters}")
-        tried.sort(key=lambda cm: cm[0].delta_bic)
-        passing = []
-        for cand, model in [cm for cm in tried
-                            if cm[0].delta_bic <= limit and cm[0].plausible][:TOP_CANDIDATES]:
-            effect = model.effects[-1]
-
-            def model_of_training(masks, effect=effect, model=model, accepted=accepted):
-                return _optimise(contexts, accepted, effect, masks, start=model.theta[-1],
-                                 maxfev=60)[0]
-
-            # held out under the candidate's own noise model (samples differ along its own
-            # sensitivities, as after acceptance), the current model refitted under the same
-            # one: with the base model's directions a candidate's refits can tilt along the
-            # difference for free, and a wrong shape lowered the chi-square while moving its
-            # predictions away from every sample alike (compressibility campaign, a series
-            # spring: held-out chi2 -40 %, systematic gap 0.6 -> 1.1 %)
-            with _noise_of(contexts, model):
-                reference = _heldout(contexts, current_of_training, folds)
-                held = _heldout(contexts, model_of_training, folds)
-                fitted = _campaign_fit(contexts, model)[1]
-            systematic = _pooled(_systematic(ctx, fitted[ctx.layer][3]) for ctx in contexts
-                                 if ctx.layer in fitted)
-            cand.systematic = systematic
-            cand.heldout = held
-            cand.heldout_improvement = {
-                kind: 1.0 - held[kind]["chi2"] / reference[kind]["chi2"] for kind in held}
-            log(f"discover round {round_no + 1}: {cand.effect:<20} held-out RMS "
-                + ", ".join(f"{kind} {1e3 * reference[kind]['rms_N']:.1f} -> "
-                            f"{1e3 * held[kind]['rms_N']:.1f} mN (chi2 "
-                            f"{100 * cand.heldout_improvement[kind]:+.0f} %)" for kind in held))
-            # better prediction: the generalised chi-square must drop, and the systematic part
-            # of the gap (the cell means over the samples) must not grow
-            worse = [kind for kind in held
-                     if held[kind]["systematic"] > reference[kind]["systematic"]]
-            log(f"discover round {round_no + 1}: {cand.effect:<20} systematic gap "
-                f"{100 * systematic_current:.2f} -> {100 * systematic:.2f} %")
-            if systematic > systematic_current:
-                # the gap must shrink, not only the chi-square: the noise model lets a wrong
-                # shape lower the chi-square along the samples' own scatter while the mean
-                # over the samples moves away (compressibility campaign: a series spring)
-                cand.plausible = False
-                cand.reason = (f"the systematic gap grows ({100 * systematic_current:.2f} -> "
-                               f"{100 * systematic:.2f} %)")
-                log(f"discover round {round_no + 1}: {cand.effect:<20} {cand.reason}")
-            elif worse:
-                cand.plausible = False
-                cand.reason = ("its predictions of held-out data are further from the samples' "
-                               "mean (systematic gap " + ", ".join(
-                                   f"{kind} {100 * reference[kind]['systematic']:.2f} -> "
-                                   f"{100 * held[kind]['systematic']:.2f} %" for kind in worse)
-                               + ")")
-                log(f"discover round {round_no + 1}: {cand.effect:<20} {cand.reason}")
-            elif all(v >= thresholds["heldout_improvement"]
-                     for v in cand.heldout_improvement.values()):
-                passing.append((cand, model))
-        rounds.append([c for c, _ in tried])
-        # the fast model's verdict must hold in direct FE solves of the extended model (it
-        # combines effects multiplicatively and tabulates them at one alpha and geometry)
-        if passing and chi2_direct_current is None:
-            chi2_direct_current = _direct_chi2(contexts, accepted)
-
-        def confirmed(cand, model, base=chi2_direct_current, round_no=round_no):
-            cand.direct_delta_bic = float(_direct_chi2(contexts, model) - base
-                                          + len(model.effects[-1].bounds) * math.log(n_cycles))
-            log(f"discover round {round_no + 1}: {cand.effect:<20} direct FE check: dBIC "
-                f"{cand.direct_delta_bic:.1f}")
-            if cand.direct_delta_bic <= limit:
-                return True
-            cand.plausible = False
-            cand.reason = (f"direct FE solves do not confirm it (dBIC {cand.direct_delta_bic:.1f}"
-                           f" against {cand.delta_bic:.1f} in the fast model)")
-            return False
-
-        # candidates the information criterion cannot tell apart (within the margin of the
-        # best) are ranked by how much of the systematic gap they close: the chi-square of
-        # two near-degenerate shapes differs by what the noise model forgives, the gap by
-        # what they explain (compressibility campaign: a series spring, dBIC -182, against
-        # nu, -180; systematic gap 0.58 -> 0.49 % against 0.41 %)
-        if passing:
-            top = passing[0][0].delta_bic
-            near = [cm for cm in passing if cm[0].delta_bic - top < _margin(top)]
-            near.sort(key=lambda cm: cm[0].systematic)
-            passing = near + passing[len(near):]
-        # the best candidate the direct solves confirm is accepted; a runner-up that explains
-        # the data almost as well (and is confirmed too) is named beside it
-        i_best = next((i for i, (cand, model) in enumerate(passing) if confirmed(cand, model)),
-                      None)
-        if i_best is None:
+        judging = _Round(round_no, contexts, settings, workers, scheduler, log, thresholds,
+                         folds, accepted, tried, chi2_current, systematic_current,
+                         current_of_training)
+        chosen = judging.run()
+        grid_solves += judging.grid_solves
+        also_possible += judging.also_possible
+        rounds.append([c for c, _ in judging.tried])
+        if chosen is None:
             break
-        best, best_model = passing[i_best]
+        best, best_model = chosen
         best.accepted = True
-        for cand, model in passing[i_best + 1:]:
-            if cand.delta_bic - best.delta_bic < _margin(best.delta_bic) and confirmed(cand,
-                                                                                      model):
-                also_possible.append(cand.effect)
         accepted = best_model
         # what the effect explains is no longer scatter: new noise model, polished parameters
         _refresh_noise(contexts, accepted)
@@ -1697,7 +1797,6 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
 
         current_of_training = accepted_of_training
         heldout_current = _heldout(contexts, accepted_of_training, folds)
-        chi2_direct_current = None  # recomputed under the refreshed noise model when needed
         log(f"discover: accepted {best.effect} {best.parameters}")
 
     # the gap before and after, with direct FE solves of the accepted model
@@ -1876,7 +1975,7 @@ def discovery_markdown(result: DiscoveryResult) -> str:
                   "| --- | --- | --- | --- | --- | --- |"]
         for c in sorted(candidates, key=lambda c: c.delta_bic):
             params = ", ".join(f"{k} = {v:.4g}" for k, v in c.parameters.items())
-            gain = ("" if c.heldout_improvement is None else ", ".join(
+            gain = (c.note if c.heldout_improvement is None else ", ".join(
                 f"{k} {100 * v:+.1f} %" for k, v in c.heldout_improvement.items()))
             lines.append(f"| {c.effect}{' (accepted)' if c.accepted else ''} | "
                          f"{c.delta_bic:.1f} | {1e3 * c.rms_N:.2f} | {params} | "
