@@ -27,8 +27,9 @@ import scipy.sparse.linalg as spla
 
 from .kernels import AxisymmetricOperators, HexOperators
 
-__all__ = ["element_stiffness", "assemble", "element_max_frequency_sq", "factorize",
-           "lowest_mode", "influence_field"]
+__all__ = ["element_stiffness", "assemble", "element_max_frequency_sq",
+           "element_max_frequency_sq_coupled", "factorize", "lanczos_max", "lowest_mode",
+           "influence_field"]
 
 
 def _axisym_B(ops: AxisymmetricOperators) -> np.ndarray:
@@ -143,6 +144,81 @@ def element_max_frequency_sq(Ke: np.ndarray, element_mass: np.ndarray) -> np.nda
     return np.linalg.eigvalsh(A)[:, -1]
 
 
+def element_max_frequency_sq_coupled(Ke: np.ndarray, element_mass: np.ndarray,
+                                     grad: np.ndarray, coefficient: np.ndarray) -> np.ndarray:
+    r"""Highest :math:`\omega^2` of each element against lumped plus volumetric mass.
+
+    The element's mass is :math:`M_e = \mathrm{diag}(m_e) + a_e b_e b_e^T` (see
+    :mod:`solver.mass`); the eigenvalues of :math:`L^{-1} K_e L^{-T}` with
+    :math:`M_e = L L^T` are those of the pencil. The largest over the elements bounds the
+    mesh's highest frequency (the Rayleigh quotient of a sum of element terms).
+
+    Parameters
+    ----------
+    Ke : ndarray, shape (n_elem, 8, 8)
+    element_mass : ndarray, shape (n_elem, 4)
+    grad : ndarray, shape (n_elem, 4, 2)
+        :math:`b_e`.
+    coefficient : ndarray, shape (n_elem,)
+        :math:`a_e`.
+
+    Returns
+    -------
+    ndarray, shape (n_elem,)
+    """
+    n = len(Ke)
+    b = grad.reshape(n, -1)
+    Me = coefficient[:, None, None] * np.einsum("ei,ej->eij", b, b)
+    diag = np.arange(Me.shape[1])
+    Me[:, diag, diag] += np.repeat(element_mass, 2, axis=1)
+    L_inv = np.linalg.inv(np.linalg.cholesky(Me))
+    return np.linalg.eigvalsh(L_inv @ Ke @ np.transpose(L_inv, (0, 2, 1)))[:, -1]
+
+
+def lanczos_max(apply_K, apply_M, apply_M_inv, start: np.ndarray, n_iter: int = 10):
+    r"""Largest eigenvalue of the pencil :math:`(K, M)` by Lanczos in the M-inner product.
+
+    :math:`M^{-1} K` is self-adjoint in :math:`\langle x, y\rangle_M = x^T M y`; the
+    Krylov space from ``start`` is orthogonalised against every earlier vector (twice). The
+    largest Ritz value approaches the largest eigenvalue from below; ten steps from a warm
+    start (the last call's Ritz vector) find it to a few per cent.
+
+    Parameters
+    ----------
+    apply_K, apply_M, apply_M_inv : callable
+        Products with :math:`K`, :math:`M`, :math:`M^{-1}` (arrays of the shape of
+        ``start``).
+    start : ndarray
+    n_iter : int
+
+    Returns
+    -------
+    value : float
+    vector : ndarray
+        The Ritz vector (M-normalised), a warm start for the next call.
+    """
+    q = start / math.sqrt(float(np.vdot(start, apply_M(start))))
+    basis, m_basis, alphas, betas = [], [], [], []
+    for _ in range(n_iter):
+        kq = apply_K(q)
+        basis.append(q)
+        m_basis.append(apply_M(q))
+        alphas.append(float(np.vdot(q, kq)))
+        w = apply_M_inv(kq)
+        for _ in range(2):
+            for qi, mqi in zip(basis, m_basis):
+                w = w - float(np.vdot(mqi, w)) * qi
+        beta = math.sqrt(max(float(np.vdot(w, apply_M(w))), 0.0))
+        if beta <= 1e-12 * abs(alphas[-1]):
+            break
+        betas.append(beta)
+        q = w / beta
+    k = len(alphas)
+    vals, vecs = scipy.linalg.eigh_tridiagonal(np.array(alphas), np.array(betas[:k - 1]))
+    top = vecs[:, -1]
+    return float(vals[-1]), sum(c * qi for c, qi in zip(top, basis))
+
+
 def factorize(K: sp.spmatrix, free: np.ndarray):
     """Sparse LU factors of the free-free block, shared by the static set-up.
 
@@ -165,15 +241,16 @@ def factorize(K: sp.spmatrix, free: np.ndarray):
 PARTICIPATION = 1e-3
 
 
-def lowest_mode(K: sp.csr_matrix, mass: np.ndarray, free: np.ndarray,
+def lowest_mode(K: sp.csr_matrix, mass, free: np.ndarray,
                 load: np.ndarray | None = None, n_modes: int = 8, lu=None) -> float:
     r"""Lowest natural angular frequency squared of the constrained sample.
 
     Parameters
     ----------
     K : sparse matrix, shape (n_dof, n_dof)
-    mass : ndarray, shape (n_dof,)
-        Lumped mass per DOF (kg).
+    mass : ndarray, shape (n_dof,), or sparse matrix, shape (n_dof, n_dof)
+        Lumped mass per DOF (kg), or a mass matrix (with the volumetric mass of
+        :mod:`solver.mass`).
     free : ndarray of bool, shape (n_dof,)
     load : ndarray, shape (n_dof,), optional
         The influence field :math:`w`. With the platen's motion written as
@@ -205,8 +282,10 @@ def lowest_mode(K: sp.csr_matrix, mass: np.ndarray, free: np.ndarray,
     run amplified its last-digit differences to 5e-4 of the force).
     """
     Kff = K[free][:, free].tocsc()
-    m = mass[free]
-    Mff = sp.diags(m).tocsc()
+    if sp.issparse(mass):
+        Mff = sp.csr_matrix(mass)[free][:, free].tocsc()
+    else:
+        Mff = sp.diags(mass[free]).tocsc()
     n = Kff.shape[0]
     if lu is None:
         lu = factorize(K, free)
@@ -219,13 +298,13 @@ def lowest_mode(K: sp.csr_matrix, mass: np.ndarray, free: np.ndarray,
     seeded = np.random.default_rng(0).uniform(0.5, 1.5, n)
     if load is None:
         return float(modes(1, seeded, vectors=False)[0])
-    Mw = m * load[free]
+    Mw = Mff @ load[free]
     ww = float(load[free] @ Mw)
 
     def participation(phi):
-        return (phi @ Mw) ** 2 / (float(phi @ (m * phi)) * ww)
+        return (phi @ Mw) ** 2 / (float(phi @ (Mff @ phi)) * ww)
 
-    found = _krylov_lowest(Kff, m, lu, load[free], participation)
+    found = _krylov_lowest(Kff, Mff, lu, load[free], participation)
     if found is not None:
         return found
     k = min(n_modes, n - 2)
@@ -239,7 +318,7 @@ def lowest_mode(K: sp.csr_matrix, mass: np.ndarray, free: np.ndarray,
         k = min(2 * k, n - 2)
 
 
-def _krylov_lowest(Kff, m, lu, w, participation, n_max: int = 24, rtol: float = 1e-10):
+def _krylov_lowest(Kff, Mff, lu, w, participation, n_max: int = 24, rtol: float = 1e-10):
     """Lowest participating Ritz value in the Krylov space of K^-1 M started from ``w``.
 
     Block-free Lanczos with full M-orthogonalisation (twice, against the rounding that would
@@ -248,20 +327,20 @@ def _krylov_lowest(Kff, m, lu, w, participation, n_max: int = 24, rtol: float = 
     """
     basis = []
     x = w.copy()
-    scale = math.sqrt(float(x @ (m * x)))
+    scale = math.sqrt(float(x @ (Mff @ x)))
     previous = None
     for _ in range(n_max):
         for _ in range(2):
             for v in basis:
-                x = x - (v @ (m * x)) * v
-        norm = math.sqrt(float(x @ (m * x)))
+                x = x - (v @ (Mff @ x)) * v
+        norm = math.sqrt(float(x @ (Mff @ x)))
         if basis and norm <= 1e-12 * scale:
             break  # the space is exhausted (invariant subspace reached)
         x = x / norm
         basis.append(x)
         V = np.column_stack(basis)
         Kr = V.T @ (Kff @ V)
-        Mr = V.T @ (m[:, None] * V)
+        Mr = V.T @ (Mff @ V)
         vals, vecs = scipy.linalg.eigh(0.5 * (Kr + Kr.T), 0.5 * (Mr + Mr.T))
         current = None
         for i in np.argsort(vals):
@@ -272,7 +351,7 @@ def _krylov_lowest(Kff, m, lu, w, participation, n_max: int = 24, rtol: float = 
                 rtol * abs(current)):
             return current
         previous = current
-        x = lu.solve(m * x)
+        x = lu.solve(Mff @ x)
     return None
 
 
