@@ -182,7 +182,9 @@ class SimulationResult:
     density_kg_m3 : float
         Density used in the run (after mass scaling).
     added_mass_fraction : float
-        Mass added by selective scaling over the total mass.
+        Lumped mass added to the smallest elements over the total mass.
+    volumetric_mass : bool
+        Whether the run used the volumetric selective mass (:mod:`solver.mass`).
     wall_s : float
         Wall-clock time of the time loop (s).
     cell_stress_Pa : ndarray, shape (n_cells, 6)
@@ -207,6 +209,7 @@ class SimulationResult:
     added_mass_fraction: float
     wall_s: float
     cell_stress_Pa: np.ndarray | None = None
+    volumetric_mass: bool = False
 
     @property
     def deformed_points_m(self) -> np.ndarray:
@@ -688,6 +691,162 @@ def _twist_pin(mesh: Mesh, sets: dict) -> tuple[int, int]:
                      "(use an even n_core / nx, ny)")
 
 
+@dataclasses.dataclass(frozen=True)
+class _LinearSetup:
+    """What an explicit run needs of the linearised problem at unit shear modulus and density.
+
+    It depends on the mesh, the platen condition (bonded or not), the moduli relative to the
+    first material's and the mass-scaling options, not on mu or alpha: a calibration's runs
+    share it (see :func:`_linear_setup`). Nothing in it is modified by a run.
+    """
+
+    ops: object
+    sets: dict
+    faces: np.ndarray
+    fix_tangent: np.ndarray
+    twist_pin: np.ndarray
+    k_hg_unit: np.ndarray
+    node_mass_unit: np.ndarray
+    added_mass_fraction: float
+    omega2_e: np.ndarray
+    omega2_1: float
+    w: np.ndarray
+    candidate: np.ndarray
+    #: volumetric mass (None without): coefficients a_e at unit density, and the topology
+    coef_unit: np.ndarray | None = None
+    vm_topology: VolumetricMass | None = None
+    probe: TangentProbe | None = None
+
+
+#: Recently used set-ups, most recent last (see :func:`_linear_setup`).
+_SETUPS: dict = {}
+_SETUPS_KEPT = 16
+
+
+def _linear_setup(mesh: Mesh, bonded: bool, shear_inst, shear_lt, bulk, hourglass,
+                  mass_scaling, quantile, volumetric_mass) -> _LinearSetup:
+    """The linear set-up of a run (:class:`_LinearSetup`), computed once per distinct input.
+
+    ``shear_inst``, ``shear_lt`` and ``bulk`` are per material, over the first material's
+    instantaneous shear modulus. The key holds every input by value (the mesh by its
+    coordinates, cells and materials).
+    """
+    key = (mesh.cell_type, mesh.points.tobytes(), mesh.cells.tobytes(),
+           mesh.cell_material.tobytes(), bonded, np.asarray(shear_inst).tobytes(),
+           np.asarray(shear_lt).tobytes(), np.asarray(bulk).tobytes(), hourglass, mass_scaling,
+           quantile, volumetric_mass)
+    found = _SETUPS.pop(key, None)
+    if found is None:
+        found = _compute_linear_setup(mesh, bonded, shear_inst, shear_lt, bulk, hourglass,
+                                      mass_scaling, quantile, volumetric_mass)
+        while len(_SETUPS) >= _SETUPS_KEPT:
+            _SETUPS.pop(next(iter(_SETUPS)))
+    _SETUPS[key] = found
+    return found
+
+
+def _compute_linear_setup(mesh, bonded, shear_inst, shear_lt, bulk, hourglass, mass_scaling,
+                          quantile, volumetric_mass) -> _LinearSetup:
+    """See :func:`_linear_setup`."""
+    hexa = mesh.cell_type == "hexahedron"
+    if hexa:
+        ops = hex_operators(mesh.points, mesh.cells)
+    else:
+        ops = axisymmetric_operators(mesh.points, mesh.cells)
+    mat = mesh.cell_material
+    n_nodes, dim = mesh.points.shape
+    # --- normalised (unit shear modulus, unit density) linear problem
+    shear_inst = np.asarray(shear_inst)[mat]
+    shear_lt = np.asarray(shear_lt)[mat]
+    bulk = np.asarray(bulk)[mat]
+    k_hg_unit = hourglass * shear_lt * ops.gamma_scale
+    use_vm = volumetric_mass > 0
+    if use_vm:
+        # the deviatoric (and hourglass) part alone sets the step; the volumetric part is
+        # brought to volumetric_mass times it by the added mass below
+        Ke_dev = element_stiffness(ops, shear_inst, np.zeros_like(bulk), k_hg_unit)
+        omega2_dev = element_max_frequency_sq(Ke_dev, ops.node_volume)  # unit density
+        omega2_e = (1.0 + volumetric_mass) * omega2_dev
+    else:
+        Ke_inst = element_stiffness(ops, shear_inst, bulk, k_hg_unit)
+        omega2_e = element_max_frequency_sq(Ke_inst, ops.node_volume)  # unit density
+    if mass_scaling:
+        dt_e = 2.0 / np.sqrt(omega2_e)
+        target = np.quantile(dt_e, quantile)
+        scale_e = np.maximum(1.0, (target / dt_e) ** 2)
+    else:
+        scale_e = np.ones(len(omega2_e))
+    omega2_e = omega2_e / scale_e
+    if use_vm:
+        omega2_dev = omega2_dev / scale_e
+        share_mass = ops.node_volume * scale_e[:, None]  # element's lumped mass per node
+        b_ref = np.zeros((mesh.n_cells, 4, 2))
+        volumetric_gradient(np.zeros((n_nodes, 2)), mesh.cells, ops.bbar, ops.hbar,
+                            np.ones((n_nodes, 2), dtype=np.bool_), np.ones(mesh.n_cells),
+                            b_ref)
+        kappa = ops.volume * bulk  # volumetric stiffness K V of each element (unit shear)
+
+        # element volumetric frequency^2 against its lumped masses (unit density)
+        s_ref = kappa * np.einsum("ead,ea->e", b_ref * b_ref, 1.0 / share_mass)
+        beta = np.maximum(0.0, 1.0 / (volumetric_mass * omega2_dev) - 1.0 / s_ref)
+        coef_unit = beta * kappa  # a_e at unit density
+        omega2_e = element_max_frequency_sq_coupled(
+            element_stiffness(ops, shear_inst, bulk, k_hg_unit), share_mass, b_ref, coef_unit)
+    node_mass_unit = np.zeros(n_nodes)
+    np.add.at(node_mass_unit, mesh.cells, ops.node_volume * scale_e[:, None])
+    plain_mass = np.zeros(n_nodes)
+    np.add.at(plain_mass, mesh.cells, ops.node_volume)
+    added_mass_fraction = float(node_mass_unit.sum() / plain_mass.sum() - 1.0)
+
+    # --- platen constraints: z on both faces; all directions if bonded. The axis of the
+    # axisymmetric model holds r. A hexahedral model with sliding faces holds the lateral
+    # motion of its axis nodes (exact by symmetry), and its static set-up also the twist.
+    sets = mesh.node_sets()
+    faces = sets["top"] | sets["bottom"]
+    constrained = np.zeros((n_nodes, dim), dtype=bool)
+    constrained[faces, -1] = True
+    if bonded:
+        constrained[faces, :] = True
+    if not hexa or not bonded:
+        fix_tangent = np.ascontiguousarray(sets["axis"])
+        if hexa and not fix_tangent.any():
+            raise ValueError("frictionless or Coulomb platens on a hexahedral mesh need nodes "
+                             "on the axis (x = y = 0) to hold the rigid lateral motion (use an "
+                             "even n_core / nx, ny)")
+    else:
+        fix_tangent = np.zeros(n_nodes, dtype=bool)
+    constrained[fix_tangent, :-1] = True
+    static = constrained.copy()
+    twist_pin = np.zeros((n_nodes, dim), dtype=bool)
+    if hexa and not bonded:
+        twist_pin[_twist_pin(mesh, sets)] = True
+        static |= twist_pin
+    prescribed = np.zeros((n_nodes, dim))
+    prescribed[sets["top"], -1] = -1.0  # unit travel of the top platen
+    Ke_lt = element_stiffness(ops, shear_lt, bulk, k_hg_unit)
+    K_lt = assemble(mesh.cells, Ke_lt, n_nodes, dim)
+    free = ~static.ravel()
+    lu = factorize(K_lt, free)
+    w = influence_field(K_lt, free, prescribed.ravel(), lu=lu)
+    mass_unit = np.repeat(node_mass_unit, dim)
+    if use_vm:
+        # the volumetric mass of the DOFs that move freely at the start (the static free set)
+        mass_unit = sp.diags(mass_unit) + added_mass_matrix(
+            mesh.cells, b_ref * free.reshape(n_nodes, dim)[mesh.cells], coef_unit, n_nodes)
+    omega2_1 = lowest_mode(K_lt, mass_unit, free, load=w, lu=lu)
+    del lu
+    return _LinearSetup(
+        ops=ops, sets=sets, faces=faces, fix_tangent=fix_tangent, twist_pin=twist_pin,
+        k_hg_unit=k_hg_unit, node_mass_unit=node_mass_unit,
+        added_mass_fraction=added_mass_fraction, omega2_e=omega2_e, omega2_1=float(omega2_1),
+        w=w.reshape(n_nodes, dim), candidate=mesh.boundary_nodes(),
+        coef_unit=coef_unit if use_vm else None,
+        vm_topology=(VolumetricMass.for_mesh(mesh.cells, n_nodes, np.zeros(mesh.n_cells))
+                     if use_vm else None),
+        probe=None if hexa else TangentProbe(mesh.cells, n_nodes, dim))
+
+
+
 def simulate(
     material: Ogden | Sequence[Ogden],
     test: CompressionTest | None = None,
@@ -812,98 +971,23 @@ def simulate(
     influence = influence or ("linear" if hexa else "tangent")
     if influence not in ("tangent", "linear"):
         raise ValueError(f"influence={influence!r} is not 'tangent' or 'linear'")
-    if hexa:
-        ops = hex_operators(mesh.points, mesh.cells)
-    else:
-        ops = axisymmetric_operators(mesh.points, mesh.cells)
     mu, mu_lt, alpha, K, g, tau = _material_tables(materials, n_mat)
     mat = mesh.cell_material
     mu_ref = materials[0].mu0_Pa
     n_nodes, dim = mesh.points.shape
-
-    # --- normalised (unit shear modulus, unit density) linear problem
-    shear_inst = mu.sum(axis=1)[mat] / mu_ref
-    shear_lt = mu_lt.sum(axis=1)[mat] / mu_ref
-    bulk = K[mat] / mu_ref
-    k_hg_unit = hourglass * shear_lt * ops.gamma_scale
     use_vm = (mass_scaling and volumetric_mass > 0 and not hexa
               and test.platen != "coulomb")
-    if use_vm:
-        # the deviatoric (and hourglass) part alone sets the step; the volumetric part is
-        # brought to volumetric_mass times it by the added mass below
-        Ke_dev = element_stiffness(ops, shear_inst, np.zeros_like(bulk), k_hg_unit)
-        omega2_dev = element_max_frequency_sq(Ke_dev, ops.node_volume)  # unit density
-        omega2_e = (1.0 + volumetric_mass) * omega2_dev
-    else:
-        Ke_inst = element_stiffness(ops, shear_inst, bulk, k_hg_unit)
-        omega2_e = element_max_frequency_sq(Ke_inst, ops.node_volume)  # unit density
-    if mass_scaling:
-        dt_e = 2.0 / np.sqrt(omega2_e)
-        target = np.quantile(dt_e, mass_scaling_quantile)
-        scale_e = np.maximum(1.0, (target / dt_e) ** 2)
-    else:
-        scale_e = np.ones(len(omega2_e))
-    omega2_e = omega2_e / scale_e
-    if use_vm:
-        omega2_dev = omega2_dev / scale_e
-        share_mass = ops.node_volume * scale_e[:, None]  # element's lumped mass per node
-        b_ref = np.zeros((mesh.n_cells, 4, 2))
-        volumetric_gradient(np.zeros((n_nodes, 2)), mesh.cells, ops.bbar, ops.hbar,
-                            np.ones((n_nodes, 2), dtype=np.bool_), np.ones(mesh.n_cells),
-                            b_ref)
-        kappa = ops.volume * bulk  # volumetric stiffness K V of each element (unit shear)
-
-        # element volumetric frequency^2 against its lumped masses (unit density)
-        s_ref = kappa * np.einsum("ead,ea->e", b_ref * b_ref, 1.0 / share_mass)
-        beta = np.maximum(0.0, 1.0 / (volumetric_mass * omega2_dev) - 1.0 / s_ref)
-        coef_unit = beta * kappa  # a_e at unit density
-        omega2_e = element_max_frequency_sq_coupled(
-            element_stiffness(ops, shear_inst, bulk, k_hg_unit), share_mass, b_ref, coef_unit)
-    node_mass_unit = np.zeros(n_nodes)
-    np.add.at(node_mass_unit, mesh.cells, ops.node_volume * scale_e[:, None])
-    plain_mass = np.zeros(n_nodes)
-    np.add.at(plain_mass, mesh.cells, ops.node_volume)
-    added_mass_fraction = float(node_mass_unit.sum() / plain_mass.sum() - 1.0)
-
-    # --- platen constraints: z on both faces; all directions if bonded. The axis of the
-    # axisymmetric model holds r. A hexahedral model with sliding faces holds the lateral
-    # motion of its axis nodes (exact by symmetry), and its static set-up also the twist.
-    sets = mesh.node_sets()
+    lin = _linear_setup(mesh, test.platen == "bonded", mu.sum(axis=1) / mu_ref,
+                        mu_lt.sum(axis=1) / mu_ref, K / mu_ref, float(hourglass),
+                        bool(mass_scaling), float(mass_scaling_quantile),
+                        float(volumetric_mass) if use_vm else 0.0)
+    ops, sets, faces, fix_tangent, twist_pin = lin.ops, lin.sets, lin.faces, lin.fix_tangent, \
+        lin.twist_pin
+    omega2_e, omega2_1, node_mass_unit, w = lin.omega2_e, lin.omega2_1, lin.node_mass_unit, lin.w
+    k_hg_unit = lin.k_hg_unit
     bonded = test.platen == "bonded"
-    faces = sets["top"] | sets["bottom"]
-    constrained = np.zeros((n_nodes, dim), dtype=bool)
-    constrained[faces, -1] = True
-    if bonded:
-        constrained[faces, :] = True
-    if not hexa or not bonded:
-        fix_tangent = np.ascontiguousarray(sets["axis"])
-        if hexa and not fix_tangent.any():
-            raise ValueError("frictionless or Coulomb platens on a hexahedral mesh need nodes "
-                             "on the axis (x = y = 0) to hold the rigid lateral motion (use an "
-                             "even n_core / nx, ny)")
-    else:
-        fix_tangent = np.zeros(n_nodes, dtype=bool)
-    constrained[fix_tangent, :-1] = True
-    static = constrained.copy()
-    twist_pin = np.zeros((n_nodes, dim), dtype=bool)
-    if hexa and not bonded:
-        twist_pin[_twist_pin(mesh, sets)] = True
-        static |= twist_pin
-    prescribed = np.zeros((n_nodes, dim))
-    prescribed[sets["top"], -1] = -1.0  # unit travel of the top platen
-    Ke_lt = element_stiffness(ops, shear_lt, bulk, k_hg_unit)
-    K_lt = assemble(mesh.cells, Ke_lt, n_nodes, dim)
-    free = ~static.ravel()
-    lu = factorize(K_lt, free)
-    w = influence_field(K_lt, free, prescribed.ravel(), lu=lu)
-    mass_unit = np.repeat(node_mass_unit, dim)
-    if use_vm:
-        # the volumetric mass of the DOFs that move freely at the start (the static free set)
-        mass_unit = sp.diags(mass_unit) + added_mass_matrix(
-            mesh.cells, b_ref * free.reshape(n_nodes, dim)[mesh.cells], coef_unit, n_nodes)
-    omega2_1 = lowest_mode(K_lt, mass_unit, free, load=w, lu=lu)
-    del lu
-    w = w.reshape(n_nodes, dim)
+    shear_inst = mu.sum(axis=1)[mat] / mu_ref
+    shear_lt = mu_lt.sum(axis=1)[mat] / mu_ref
 
     T = test.ramp_time_s
     if mass_scaling:
@@ -919,7 +1003,7 @@ def simulate(
     # --- physical arrays
     mass = np.ascontiguousarray(density * node_mass_unit)
     if use_vm:
-        vm = VolumetricMass.for_mesh(mesh.cells, n_nodes, density * coef_unit)
+        vm = lin.vm_topology.with_coefficient(density * lin.coef_unit)
     else:  # empty work arrays for the kernel's signature
         vm = VolumetricMass.for_mesh(np.zeros((0, 4), np.int32), 0, np.zeros(0))
     n_vm = mesh.n_cells if use_vm else 0
@@ -943,7 +1027,7 @@ def simulate(
     state[sets["bottom"]] = BOTTOM
     state[sets["top"]] = TOP
     glued = faces if bonded else np.zeros(n_nodes, dtype=bool)
-    candidate = mesh.boundary_nodes()
+    candidate = lin.candidate
     anchor = np.zeros((n_nodes, dim))
     n_stress = 6 if hexa else 4  # isochoric PK2 components with a Prony history
     s_prev = np.zeros((mesh.n_cells, n_stress))
@@ -1006,7 +1090,9 @@ def simulate(
                           mu, alpha, K, g, decay, gain, s_prev, hist, False, ff)
         return ff
 
-    probe = TangentProbe(mesh.cells, n_nodes, dim) if influence == "tangent" else None
+    probe = None
+    if influence == "tangent":
+        probe = lin.probe or TangentProbe(mesh.cells, n_nodes, dim)
 
     def tangent_influence():
         """Influence field of the current tangent stiffness and contact state."""
@@ -1020,7 +1106,8 @@ def simulate(
         held[glued, :] = True
         moved = np.zeros((n_nodes, dim))
         moved[state == TOP, -1] = -1.0
-        return influence_field(Kt, ~held.ravel(), moved.ravel()).reshape(n_nodes, dim)
+        return influence_field(Kt, ~held.ravel(), moved.ravel(),
+                               banded=True).reshape(n_nodes, dim)
 
     def stiffen():
         if hexa:
@@ -1040,7 +1127,7 @@ def simulate(
         # deviatoric balance of the small rim elements and barely moves (default test:
         # +5 % at 30 %, where a scalar bound of the tangent grew 16-fold): it is followed by
         # Lanczos on the tangent (forward differences of the force kernel) and the current
-        # mass, five times along the ramp
+        # mass, four times along the ramp
         check_every = max(1, (len(times) - 1) // 5)
         held, grad_free, band, work = vm_arrays[0], vm_arrays[7], vm_arrays[8], vm_arrays[9]
         # the forces of the tangent see the long-term deviatoric moduli (no history update)
@@ -1111,7 +1198,8 @@ def simulate(
                 f"energy", steps, t_eval, 1e3 * d, int(np.argmax(per_element)))
         # re-check the stable step as elements shorten and the material stiffens
         if use_vm:
-            if k % check_every and k != len(times) - 1:
+            # the start is covered by the element bound, the last point has no ramp left
+            if k % check_every or k == 0 or k == len(times) - 1:
                 continue
             dt_now = dt_safety * 2.0 / math.sqrt(highest_frequency_sq())
         else:
@@ -1140,7 +1228,8 @@ def simulate(
         contact_radius_mm=1e3 * out["radius"], mesh=mesh, displacement_m=u_eval.copy(),
         n_steps=steps, dt_s=T / n_steps_plan, natural_period_s=natural_period,
         quasi_static_ratio=T / natural_period, density_kg_m3=density,
-        added_mass_fraction=added_mass_fraction, wall_s=wall, cell_stress_Pa=cell_stress)
+        added_mass_fraction=lin.added_mass_fraction, wall_s=wall, cell_stress_Pa=cell_stress,
+        volumetric_mass=use_vm)
 
 
 def _hourglass_energy(u, cells, gamma, k_hg):

