@@ -84,6 +84,7 @@ from .mass import (
     apply_mass,
     assemble_band,
     band_cholesky,
+    volumetric_drift,
     volumetric_gradient,
 )
 from .materials import Ogden
@@ -107,6 +108,8 @@ DEFAULT_QUASI_STATIC_RATIO = 6.0
 #: Default with Coulomb platens (see ``quasi_static_ratio`` of :func:`simulate`).
 COULOMB_QUASI_STATIC_RATIO = 20.0
 
+#: Intervals along the ramp between checks of the stable step with the volumetric mass.
+_STEP_CHECKS = 5
 #: Contact states of a node.
 FREE, BOTTOM, TOP = 0, 1, 2
 #: Status of a run whose volumetric mass matrix lost positive definiteness (beside the
@@ -544,13 +547,15 @@ def _advance_axisym(
     t_stop, t, dt, dt_prev, kind, T, D, t_table, d_table, H, hold_damping,
     u, v, f_int, f_c, mass, X, fix_tangent, state, glued, candidate, anchor, mode, mu_f,
     conn, bbar, hbar, vol, gamma, k_hg, mat, mu, alpha, K, g, decay, gain, s_prev, hist,
-    u_eval, energy, use_vm, vm, refresh_steps, since,
+    u_eval, energy, use_vm, vm, drift, since,
 ):
     """Step the axisymmetric model until the last force evaluation reaches ``t_stop``.
 
     With ``use_vm`` the steps take the volumetric mass (:func:`_coupled_update`; ``vm`` is
-    the tuple of its arrays, ``held`` to ``rhs``), refreshed to the current state every
-    ``refresh_steps`` steps; ``since[0]`` counts the steps since the last refresh.
+    the tuple of its arrays, ``held`` to ``b_now``), refreshed to the current state once an
+    element's volumetric frequency has grown past ``drift`` times its design value
+    (:func:`solver.mass.volumetric_drift`) or when ``since[0]`` is negative; ``since[0]``
+    counts the steps since the last refresh.
 
     Returns
     -------
@@ -564,7 +569,7 @@ def _advance_axisym(
     steps : int
         Steps taken.
     """
-    held, everywhere, coef, pos, ptr, slot, grad_full, grad, band, y, acc, rhs = vm
+    held, everywhere, coef, pos, ptr, slot, grad_full, grad, band, y, acc, rhs, share, b_now = vm
     steps = 0
     t_eval = t
     while True:
@@ -577,7 +582,8 @@ def _advance_axisym(
         z_top = H - travel(t + dt, kind, T, D, t_table, d_table)
         damp = hold_damping if t >= T else 0.0
         if use_vm:
-            if since[0] >= refresh_steps:
+            if since[0] < 0 or volumetric_drift(u, conn, bbar, hbar, grad_full, share, coef,
+                                                everywhere, b_now) > drift:
                 if _refresh_mass(u, conn, bbar, hbar, mass, fix_tangent, state, mode, held,
                                  everywhere, coef, pos, ptr, slot, grad_full, grad, band,
                                  True) >= 0:
@@ -712,8 +718,10 @@ class _LinearSetup:
     omega2_1: float
     w: np.ndarray
     candidate: np.ndarray
-    #: volumetric mass (None without): coefficients a_e at unit density, and the topology
+    #: volumetric mass (None without): coefficients a_e and the elements' lumped-mass shares
+    #: at unit density, and the topology
     coef_unit: np.ndarray | None = None
+    share_unit: np.ndarray | None = None
     vm_topology: VolumetricMass | None = None
     probe: TangentProbe | None = None
 
@@ -841,6 +849,7 @@ def _compute_linear_setup(mesh, bonded, shear_inst, shear_lt, bulk, hourglass, m
         added_mass_fraction=added_mass_fraction, omega2_e=omega2_e, omega2_1=float(omega2_1),
         w=w.reshape(n_nodes, dim), candidate=mesh.boundary_nodes(),
         coef_unit=coef_unit if use_vm else None,
+        share_unit=share_mass if use_vm else None,
         vm_topology=(VolumetricMass.for_mesh(mesh.cells, n_nodes, np.zeros(mesh.n_cells))
                      if use_vm else None),
         probe=None if hexa else TangentProbe(mesh.cells, n_nodes, dim))
@@ -863,7 +872,7 @@ def simulate(
     influence: str | None = None,
     influence_updates: int = 10,
     volumetric_mass: float = 1.0,
-    mass_refresh_steps: int = 8,
+    mass_refresh_drift: float = 1.1,
 ) -> SimulationResult:
     r"""Run one explicit compression test and return its force-travel curve.
 
@@ -886,7 +895,9 @@ def simulate(
         amplify it (the force at 30 % moved by 3 % between ratios 6 and 20, by 0.4 % between
         20 and 40).
     n_out : int
-        Number of output points along the ramp (>= 2), at equal travel increments.
+        Number of output points along the ramp (>= 2), at equal travel increments: each is
+        the state of the step nearest its time (its own time, travel and force are
+        recorded), and the step is at most half the smallest output spacing.
     hourglass : float
         Hourglass stiffness coefficient :math:`\kappa` (times the shear modulus).
     mass_scaling : bool
@@ -926,9 +937,12 @@ def simulate(
         lumped masses only. Used by axisymmetric runs with bonded or frictionless platens and
         ``mass_scaling``; hexahedral and Coulomb runs use lumped masses
         (:attr:`SimulationResult.volumetric_mass` says which was used).
-    mass_refresh_steps : int
-        Steps between refreshes of the volumetric mass to the current configuration (also
-        refreshed whenever a node lands on or leaves a platen).
+    mass_refresh_drift : float
+        The volumetric mass is refreshed to the current configuration once an element's
+        volumetric frequency against the mass of the last refresh exceeds this factor times
+        its design value (:func:`solver.mass.volumetric_drift`: the element's volume gradient
+        turns as it deforms, and the turned part meets only lumped masses), and whenever a
+        node lands on or leaves a platen.
 
     Returns
     -------
@@ -964,8 +978,8 @@ def simulate(
         raise ValueError(f"quasi_static_ratio={quasi_static_ratio} must be positive")
     if not (np.isfinite(volumetric_mass) and volumetric_mass >= 0):
         raise ValueError(f"volumetric_mass={volumetric_mass} must be a non-negative number")
-    if not mass_refresh_steps >= 1:
-        raise ValueError(f"mass_refresh_steps={mass_refresh_steps} must be at least 1")
+    if not mass_refresh_drift > 1.0:
+        raise ValueError(f"mass_refresh_drift={mass_refresh_drift} must exceed 1")
 
     hexa = mesh.cell_type == "hexahedron"
     influence = influence or ("linear" if hexa else "tangent")
@@ -997,7 +1011,10 @@ def simulate(
     density = rho_ratio * mu_ref
     natural_period = 2.0 * np.pi * math.sqrt(rho_ratio / omega2_1)
     dt_stable = 2.0 * math.sqrt(rho_ratio / omega2_e.max())
-    n_steps_plan = max(1, math.ceil(T / (dt_safety * dt_stable)))
+    # every output gets its own step: at most half the smallest output spacing
+    times = test.output_times(n_out)
+    n_steps_plan = max(1, math.ceil(T / (dt_safety * dt_stable)),
+                       math.ceil(2.0 * T / np.diff(times).min()))
     dt = T / n_steps_plan
 
     # --- physical arrays
@@ -1010,7 +1027,9 @@ def simulate(
     vm_arrays = (np.zeros((n_nodes, dim), dtype=np.bool_), np.ones((n_nodes, dim), np.bool_),
                  vm.coefficient, vm.position, vm.ptr, vm.slot, vm.gradient,
                  np.zeros((n_vm, 4, 2)), vm.band, vm.work, np.zeros((n_nodes, dim)),
-                 np.zeros((n_nodes, dim)))
+                 np.zeros((n_nodes, dim)),
+                 density * lin.share_unit if use_vm else np.zeros((0, 4)),
+                 np.zeros((n_vm, 4, 2)))
     since = np.array([0], dtype=np.int64)
     k_hg = np.ascontiguousarray(mu_ref * k_hg_unit)
     share = mu / mu.sum(axis=1, keepdims=True)
@@ -1077,7 +1096,7 @@ def simulate(
                                 status_e, fe1, bool(parallel), u_eval, energy_acc)
         return _advance_axisym(*common, mesh.cells, ops.bbar, ops.hbar, ops.volume, ops.gamma,
                                k_hg, mat, mu, alpha, K, g, decay, gain, s_prev, hist, u_eval,
-                               energy_acc, use_vm, vm_arrays, int(mass_refresh_steps), since)
+                               energy_acc, use_vm, vm_arrays, float(mass_refresh_drift), since)
 
     def forces(uu):
         """Internal forces at ``uu`` without advancing any history (for the tangent)."""
@@ -1116,7 +1135,6 @@ def simulate(
             axisym_stiffening(u, mesh.cells, ops.bbar, ops.hbar, mat, alpha, share, k_ratio,
                               stiffening)
 
-    times = test.output_times(n_out)
     out = {k: np.zeros(len(times)) for k in ("time_s", "d", "force", "reaction", "bottom",
                                           "external_J", "internal_J", "strain_J",
                                           "hourglass_J", "kinetic_J", "friction_J", "damping_J",
@@ -1124,11 +1142,11 @@ def simulate(
     if use_vm:
         # the element bound of the highest frequency grows with the material's tangent and
         # the elements' shape, but the mesh's highest mode is set by the volumetric-
-        # deviatoric balance of the small rim elements and barely moves (default test:
-        # +5 % at 30 %, where a scalar bound of the tangent grew 16-fold): it is followed by
-        # Lanczos on the tangent (forward differences of the force kernel) and the current
-        # mass, four times along the ramp
-        check_every = max(1, (len(times) - 1) // 5)
+        # deviatoric balance of the small rim elements and moves much less (default test:
+        # +5 % at 30 %, where a scalar bound of the tangent grew 16-fold; alpha 12: 7.8-fold):
+        # it is followed by Lanczos on the tangent (forward differences of the force kernel)
+        # and the current mass, at the start and as often as its growth asks (below)
+        check = {"next": 0, "k": 0, "value": 0.0}
         held, grad_free, band, work = vm_arrays[0], vm_arrays[7], vm_arrays[8], vm_arrays[9]
         # the forces of the tangent see the long-term deviatoric moduli (no history update)
         visco = float(np.max(shear_inst / shear_lt))
@@ -1154,7 +1172,7 @@ def simulate(
             value, vector = lanczos_max(stiffness_times, mass_times, mass_inverse,
                                         ritz[0] * ~held)
             ritz[0] = vector
-            return 1.05 * visco * value  # growth until the next check
+            return visco * value
 
     t = 0.0
     dt_prev = 0.0
@@ -1199,9 +1217,21 @@ def simulate(
         # re-check the stable step as elements shorten and the material stiffens
         if use_vm:
             # the start is covered by the element bound, the last point has no ramp left
-            if k % check_every or k == 0 or k == len(times) - 1:
+            if k < check["next"] or k == len(times) - 1:
                 continue
-            dt_now = dt_safety * 2.0 / math.sqrt(highest_frequency_sq())
+            value = highest_frequency_sq()
+            # the growth per output since the last check, extrapolated over the next interval,
+            # chosen so that the predicted growth stays below 20 % (at most a fifth of the
+            # ramp); 10 % on top for Lanczos, which finds the highest frequency from below
+            # (its warm-started estimates scatter by a few per cent)
+            rate = 1.0
+            if k > check["k"] and check["value"] > 0.0:
+                rate = max(1.0, (value / check["value"]) ** (1.0 / (k - check["k"])))
+            longest = max(1, (len(times) - 1) // _STEP_CHECKS)
+            interval = longest if rate <= 1.0 else int(
+                min(longest, max(1, math.log(1.2) / math.log(rate))))
+            check.update(next=k + interval, k=k, value=value)
+            dt_now = dt_safety * 2.0 / math.sqrt(1.1 * value * rate ** interval)
         else:
             stiffen()
             dt_now = dt_safety * 2.0 * math.sqrt(rho_ratio / np.max(omega2_e * stiffening))

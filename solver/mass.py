@@ -60,7 +60,8 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 from ._jit import njit
 
 __all__ = ["VolumetricMass", "volumetric_gradient", "assemble_band",
-           "band_cholesky", "band_solve", "apply_inverse", "apply_mass", "added_mass_matrix"]
+           "band_cholesky", "band_solve", "apply_inverse", "apply_mass", "added_mass_matrix",
+           "volumetric_drift"]
 
 
 class VolumetricMass:
@@ -332,3 +333,48 @@ def apply_mass(
             n = conn[e, a]
             out[n, 0] += grad[e, a, 0] * s
             out[n, 1] += grad[e, a, 1] * s
+
+
+@njit
+def volumetric_drift(
+    u,  # (n_nodes, 2) displacement (m)
+    conn,  # (n_elem, 4) int32
+    bbar,  # (n_elem, 4, 2)
+    hbar,  # (n_elem, 4)
+    grad,  # (n_elem, 4, 2) b_e at the last refresh (every DOF)
+    share,  # (n_elem, 4) the element's share of the lumped mass of each node (kg)
+    coefficient,  # (n_elem,) a_e (kg m^2)
+    everywhere,  # (n_nodes, 2) bool, all true
+    out,  # (n_elem, 4, 2) work array: b_e now
+):
+    r"""Largest growth of an element's volumetric frequency since the mass was refreshed.
+
+    The element's volumetric stiffness is :math:`\kappa_e b b^T` with the current gradient
+    :math:`b`; its mass still holds :math:`a_e b_r b_r^T` of the last refresh, so the part
+    of :math:`b` off :math:`b_r` meets only the lumped masses. The frequency is
+    :math:`\lambda_e = \kappa_e (s_{bb} - a_e s_{rb}^2 / (1 + a_e s_{rr}))` with
+    :math:`s_{xy} = \sum x y / m`; returned is :math:`\max_e \lambda_e \beta_e` with
+    :math:`\beta_e = a_e / \kappa_e`, whose design value (no drift) is just below 1:
+    :math:`a_e s_{bb} - a_e^2 s_{rb}^2/(1 + a_e s_{rr})`, which needs no :math:`\kappa_e`.
+    """
+    volumetric_gradient(u, conn, bbar, hbar, everywhere, coefficient, out)
+    worst = 0.0
+    for e in range(conn.shape[0]):
+        a = coefficient[e]
+        if not a > 0.0:
+            continue
+        s_bb = 0.0
+        s_rb = 0.0
+        s_rr = 0.0
+        for k in range(4):
+            inv_m = 1.0 / share[e, k]
+            for d in range(2):
+                b = out[e, k, d]
+                r = grad[e, k, d]
+                s_bb += b * b * inv_m
+                s_rb += r * b * inv_m
+                s_rr += r * r * inv_m
+        ratio = a * (s_bb - a * s_rb * s_rb / (1.0 + a * s_rr))
+        if ratio > worst:
+            worst = ratio
+    return worst

@@ -133,3 +133,26 @@ def hex_energy_numpy(u, cells, ops, material: Ogden, k_hg):
     W = float(np.sum(ops.volume * material.strain_energy(lam)))
     q = np.einsum("eki,eia->eka", ops.gamma, u[cells])
     return W, float(0.5 * np.sum(k_hg[:, None, None] * q**2))
+
+
+# ---------------------------------------------------------------------- volumetric mass
+def volumetric_gradient_numpy(u, cells, ops: AxisymmetricOperators):
+    """dJ/du (n_elem, 4, 2) of the mean Jacobian, by the cofactor J F^-T of the 3x3 F."""
+    F = mean_gradient(u, cells, ops)
+    cof = np.linalg.det(F)[:, None, None] * np.transpose(np.linalg.inv(F), (0, 2, 1))
+    out = np.zeros((len(cells), 4, 2))
+    out[:, :, 0] = (cof[:, 0, 0, None] * ops.bbar[:, :, 0] + cof[:, 0, 1, None] * ops.bbar[:, :, 1]
+                    + cof[:, 2, 2, None] * ops.hbar)
+    out[:, :, 1] = cof[:, 1, 0, None] * ops.bbar[:, :, 0] + cof[:, 1, 1, None] * ops.bbar[:, :, 1]
+    return out
+
+
+def volumetric_mass_dense(cells, mass, grad, coefficient):
+    """M = diag(m) + sum_e a_e b_e b_e^T as a dense (n_dof, n_dof) array, DOFs (n, dim)."""
+    n = len(mass)
+    M = np.diag(np.repeat(mass, 2))
+    dofs = (2 * cells[:, :, None] + np.arange(2)).reshape(len(cells), 8)
+    b = grad.reshape(len(cells), 8)
+    for e in range(len(cells)):
+        M[np.ix_(dofs[e], dofs[e])] += coefficient[e] * np.outer(b[e], b[e])
+    return M.reshape(2 * n, 2 * n)

@@ -81,11 +81,18 @@ def test_inertia_changes_the_force_well_under_one_percent(material, ramp):
 
 
 def test_force_scales_exactly_with_mu(bonded):
-    """F(d; mu, alpha, nu) = mu f(d; alpha, nu): the calibration eliminates mu with it."""
+    """F(d; mu, alpha, nu) = mu f(d; alpha, nu): the calibration eliminates mu with it.
+
+    To rounding: the same steps and times, forces within 1e-9 relative above an absolute
+    floor of 1e-10 of the peak force. The floor is the rounding of the volumetric mass's
+    solves (their element system has a condition number near 1e6), measured 5e-11 N
+    (1e-11 of the peak) at every output; it shows as 1e-9 relative at the first output.
+    """
     scaled = simulate(MATERIAL.with_mu_scaled(3100.0 / MU), CompressionTest())
     assert scaled.n_steps == bonded.n_steps
-    np.testing.assert_allclose(scaled.force_N, bonded.force_N * 3100.0 / MU, rtol=1e-9,
-                               atol=1e-12)
+    expected = bonded.force_N * 3100.0 / MU
+    np.testing.assert_allclose(scaled.force_N, expected, rtol=1e-9,
+                               atol=1e-10 * expected.max())
     np.testing.assert_allclose(scaled.time_s, bonded.time_s, rtol=0, atol=0)
 
 
