@@ -127,6 +127,8 @@ def _run_simulate(args) -> int:
     except SolverInstability as exc:
         raise WorkFailed(str(exc)) from exc
     wall = time.perf_counter() - start
+    for note in result.notes:
+        log(f"note: {note}")
     try:
         if args.vtk:
             result.write_vtk(args.vtk)

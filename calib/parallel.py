@@ -4,7 +4,8 @@ Everything that fans out goes through :func:`executor`, which returns a
 :class:`concurrent.futures.Executor`:
 
 - by default a local process pool (one process per core, at most one per item), since each
-  work item runs the numba solver for seconds and processes sidestep the GIL;
+  work item runs the numba solver many times (a layer's fit, a grid of effect solves) and
+  processes sidestep the GIL;
 - ``max_workers=1`` runs in this process (no pickling, easiest to debug and profile);
 - with a Dask scheduler address (``"tcp://host:8786"``) or a ``distributed.Client``, the
   Dask cluster's executor (``Client.get_executor()``), so the same code scales out.
