@@ -50,6 +50,7 @@ doi:10.1016/j.jbiomech.2007.06.025
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import math
 import time
@@ -84,6 +85,7 @@ from .mass import (
     apply_mass,
     assemble_band,
     band_cholesky,
+    element_dot,
     volumetric_drift,
     volumetric_gradient,
 )
@@ -482,11 +484,7 @@ def _coupled_update(
                     acc[i, d] = f_c[i, d]
         # y[e] = a_e b_e . a: the added-mass force of each element, for the held forces
         for e in range(n_elem):
-            s = 0.0
-            for a in range(4):
-                n = conn[e, a]
-                s += grad_full[e, a, 0] * acc[n, 0] + grad_full[e, a, 1] * acc[n, 1]
-            y[e] = coefficient[e] * s
+            y[e] = coefficient[e] * element_dot(e, grad_full, acc, conn)
         if attempt == 7:
             break
         # contact changes: landing free nodes, and touching ones the platen would pull
@@ -554,8 +552,8 @@ def _advance_axisym(
 ):
     """Step the axisymmetric model until the last force evaluation reaches ``t_stop``.
 
-    With ``use_vm`` the steps take the volumetric mass (:func:`_coupled_update`; ``vm`` is
-    the tuple of its arrays, ``held`` to ``b_now``), refreshed to the current state once an
+    With ``use_vm`` the steps take the volumetric mass (:func:`_coupled_update`; ``vm`` holds
+    its arrays, :class:`_VolumetricArrays`), refreshed to the current state once an
     element's volumetric frequency has grown past ``drift`` times its design value
     (:func:`solver.mass.volumetric_drift`) or when ``since[0]`` is negative; ``since[0]``
     counts the steps since the last refresh.
@@ -698,6 +696,18 @@ def _twist_pin(mesh: Mesh, sets: dict) -> tuple[int, int]:
     raise ValueError("frictionless or Coulomb platens on a hexahedral mesh need a bottom-face "
                      "node on the x or y axis to hold the rigid rotation of the static set-up "
                      "(use an even n_core / nx, ny)")
+
+
+#: The volumetric mass's arrays as the time loop takes them: ``held`` (n_nodes, 2) bool, the
+#: held DOFs of the current contact set; ``everywhere`` an all-true mask of that shape; the
+#: fixed ``coefficient``, ``position``, ``ptr``, ``slot`` of :class:`solver.mass.
+#: VolumetricMass`; ``grad_full`` and ``grad`` (n_elem, 4, 2), b_e on every DOF and on the
+#: free ones at the last refresh; ``band`` the factor of the free-free Woodbury system;
+#: work arrays ``work`` (n_elem,), ``acc``, ``rhs`` (n_nodes, 2), ``b_now`` (n_elem, 4, 2);
+#: ``share`` (n_elem, 4) each element's lumped mass per node (kg).
+_VolumetricArrays = collections.namedtuple(
+    "_VolumetricArrays", "held everywhere coefficient position ptr slot grad_full grad band "
+                         "work acc rhs share b_now")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -1013,7 +1023,6 @@ def _simulate(
     mass_refresh_drift: float = 1.1,
 ) -> SimulationResult:
     """The run of :func:`simulate` (its arguments)."""
-    test = CompressionTest() if test is None else test
     if mesh is None:
         mesh = axisymmetric_cylinder(test.diameter_mm, test.height_mm)
     if not _fits(mesh, test):
@@ -1078,12 +1087,14 @@ def _simulate(
     else:  # empty work arrays for the kernel's signature
         vm = VolumetricMass.for_mesh(np.zeros((0, 4), np.int32), 0, np.zeros(0))
     n_vm = mesh.n_cells if use_vm else 0
-    vm_arrays = (np.zeros((n_nodes, dim), dtype=np.bool_), np.ones((n_nodes, dim), np.bool_),
-                 vm.coefficient, vm.position, vm.ptr, vm.slot, vm.gradient,
-                 np.zeros((n_vm, 4, 2)), vm.band, vm.work, np.zeros((n_nodes, dim)),
-                 np.zeros((n_nodes, dim)),
-                 density * lin.share_unit if use_vm else np.zeros((0, 4)),
-                 np.zeros((n_vm, 4, 2)))
+    vm_arrays = _VolumetricArrays(
+        held=np.zeros((n_nodes, dim), dtype=np.bool_),
+        everywhere=np.ones((n_nodes, dim), np.bool_), coefficient=vm.coefficient,
+        position=vm.position, ptr=vm.ptr, slot=vm.slot, grad_full=vm.gradient,
+        grad=np.zeros((n_vm, 4, 2)), band=vm.band, work=vm.work, acc=np.zeros((n_nodes, dim)),
+        rhs=np.zeros((n_nodes, dim)),
+        share=density * lin.share_unit if use_vm else np.zeros((0, 4)),
+        b_now=np.zeros((n_vm, 4, 2)))
     since = np.array([0], dtype=np.int64)
     k_hg = np.ascontiguousarray(mu_ref * k_hg_unit)
     share = mu / mu.sum(axis=1, keepdims=True)
@@ -1113,8 +1124,10 @@ def _simulate(
     stiffening = np.zeros(mesh.n_cells)
     mode = _MODE[test.platen]
     friction = float(test.friction)
+    va = vm_arrays
     if use_vm and _refresh_mass(u, mesh.cells, ops.bbar, ops.hbar, mass, fix_tangent, state,
-                                mode, *vm_arrays[:9], True) >= 0:
+                                mode, va.held, va.everywhere, va.coefficient, va.position,
+                                va.ptr, va.slot, va.grad_full, va.grad, va.band, True) >= 0:
         raise SolverInstability("the volumetric mass matrix is not positive definite", 0, 0.0,
                                 0.0)
 
@@ -1201,7 +1214,7 @@ def _simulate(
         # it is followed by Lanczos on the tangent (forward differences of the force kernel)
         # and the current mass, at the start and as often as its growth asks (below)
         check = {"next": 0, "k": 0, "value": 0.0}
-        held, grad_free, band, work = vm_arrays[0], vm_arrays[7], vm_arrays[8], vm_arrays[9]
+        held, grad_free, band, work = va.held, va.grad, va.band, va.work
         # the forces of the tangent see the long-term deviatoric moduli (no history update)
         visco = float(np.max(shear_inst / shear_lt))
         ritz = [np.random.default_rng(0).uniform(0.5, 1.5, (n_nodes, dim))]

@@ -57,7 +57,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-from ._jit import njit
+from ._jit import njit, njit_inline
+from .kernels import _axisym_state
 
 __all__ = ["VolumetricMass", "volumetric_gradient", "assemble_band",
            "band_cholesky", "band_solve", "apply_inverse", "apply_mass", "added_mass_matrix",
@@ -142,6 +143,16 @@ class VolumetricMass:
 
 
 # ====================================================================== JIT kernels
+@njit_inline
+def element_dot(e, grad, x, conn):
+    r""":math:`b_e \cdot x_e` of element ``e`` (grad (n_elem, 4, 2), x (n_nodes, 2))."""
+    s = 0.0
+    for a in range(4):
+        n = conn[e, a]
+        s += grad[e, a, 0] * x[n, 0] + grad[e, a, 1] * x[n, 1]
+    return s
+
+
 @njit
 def volumetric_gradient(
     u,  # (n_nodes, 2) displacement (m)
@@ -164,18 +175,7 @@ def volumetric_gradient(
         if not coefficient[e] > 0.0:
             out[e, :, :] = 0.0
             continue
-        Frr = 1.0
-        Frz = 0.0
-        Fzr = 0.0
-        Fzz = 1.0
-        Ftt = 1.0
-        for a in range(4):
-            n = conn[e, a]
-            Frr += u[n, 0] * bbar[e, a, 0]
-            Frz += u[n, 0] * bbar[e, a, 1]
-            Fzr += u[n, 1] * bbar[e, a, 0]
-            Fzz += u[n, 1] * bbar[e, a, 1]
-            Ftt += u[n, 0] * hbar[e, a]
+        Frr, Frz, Fzr, Fzz, Ftt = _axisym_state(u, conn, bbar, hbar, e)
         det2 = Frr * Fzz - Frz * Fzr
         for a in range(4):
             n = conn[e, a]
@@ -285,11 +285,7 @@ def apply_inverse(
         out[i, 0] = r[i, 0] * inv_m
         out[i, 1] = r[i, 1] * inv_m
     for e in range(conn.shape[0]):
-        s = 0.0
-        for a in range(4):
-            n = conn[e, a]
-            s += grad[e, a, 0] * out[n, 0] + grad[e, a, 1] * out[n, 1]
-        y[position[e]] = s
+        y[position[e]] = element_dot(e, grad, out, conn)
     band_solve(band, y)
     for e in range(conn.shape[0]):
         ye = y[position[e]]
@@ -324,11 +320,7 @@ def apply_mass(
         out[i, 0] = mass[i] * x[i, 0]
         out[i, 1] = mass[i] * x[i, 1]
     for e in range(conn.shape[0]):
-        s = 0.0
-        for a in range(4):
-            n = conn[e, a]
-            s += grad[e, a, 0] * x[n, 0] + grad[e, a, 1] * x[n, 1]
-        s *= coefficient[e]
+        s = element_dot(e, grad, x, conn) * coefficient[e]
         for a in range(4):
             n = conn[e, a]
             out[n, 0] += grad[e, a, 0] * s
