@@ -2,8 +2,9 @@ r"""Volumetric selective mass scaling of the axisymmetric quads.
 
 A gel at :math:`\nu = 0.499` carries dilatational waves about 22 times faster than shear waves
 (:math:`c_d / c_s = \sqrt{(K + 4\mu/3)/\mu}`), so the explicit step of a lumped-mass model is
-set by the volumetric stiffness, which the quasi-static platen force hardly depends on. The
-mass matrix here adds inertia to the volumetric deformation of each element only,
+set by the volumetric stiffness, although the quasi-static platen force does not depend on the
+inertia of volumetric deformation. The mass matrix here adds inertia to the volumetric
+deformation of each element only,
 
 .. math::
 
@@ -33,12 +34,15 @@ Applying :math:`M^{-1}` is cheap because every added term has rank one: by Woodb
     (D^{-1} + B^T M_L^{-1} B)\, y = B^T M_L^{-1} r,
 
 with :math:`B = [b_1 \ldots b_{n_e}]` and :math:`D = \mathrm{diag}(a_e)`: one unknown per
-element (a pressure-like variable), coupled only between elements that share a node. Numbered
-along a reverse Cuthill-McKee order this system is banded (half-bandwidth one element row, 15
-on the default mesh) and is factorised by a banded Cholesky whenever the mass is refreshed:
-every ``refresh_steps`` steps, so that :math:`b_e` follows the deformation, and whenever the
-set of held DOFs changes (a node lands on a platen). Only DOFs that move freely take part; a
-held DOF keeps its lumped mass, so the kinematic platen constraints stay node by node.
+element (a pressure-like variable), coupled only between elements that share a node. In the
+mesh's own numbering or a reverse Cuthill-McKee order, whichever is narrower, this system is
+banded (half-bandwidth one element row plus one, 15 on the default mesh) and is factorised by
+a banded Cholesky whenever the mass is refreshed: when an element's volume gradient has
+turned far enough from the one in the mass (:func:`volumetric_drift`), so that :math:`b_e`
+follows the deformation, and whenever the set of held DOFs changes (a node lands on or leaves
+a platen). The time loop applies the inverse of the free-free block (``b_e`` zero on held
+DOFs); the held DOFs take the accelerations their constraints prescribe, and their coupling
+to the free ones goes to the right side (:func:`solver.explicit._coupled_update`).
 
 Array order as in :mod:`solver.kernels`: nodal ``(n_nodes, 2)``, element ``(n_elem, 4, 2)``,
 the band ``(n_elem, kd + 1)`` in lower storage (``band[i, k]`` is entry ``(i, i - k)``).
