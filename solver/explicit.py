@@ -61,6 +61,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import math
+import threading
 import time
 from collections.abc import Sequence
 
@@ -747,9 +748,11 @@ class _LinearSetup:
     probe: TangentProbe | None = None
 
 
-#: Recently used set-ups, most recent last (see :func:`_linear_setup`).
+#: Recently used set-ups, most recent last (see :func:`_linear_setup`), and the lock that
+#: keeps threads (the kernels release the GIL) from editing them at once.
 _SETUPS: dict = {}
 _SETUPS_KEPT = 16
+_SETUPS_LOCK = threading.Lock()
 
 
 def _linear_setup(mesh: Mesh, bonded: bool, shear_inst, shear_lt, bulk, hourglass,
@@ -764,13 +767,17 @@ def _linear_setup(mesh: Mesh, bonded: bool, shear_inst, shear_lt, bulk, hourglas
            mesh.cell_material.tobytes(), bonded, np.asarray(shear_inst).tobytes(),
            np.asarray(shear_lt).tobytes(), np.asarray(bulk).tobytes(), hourglass, mass_scaling,
            quantile, volumetric_mass)
-    found = _SETUPS.pop(key, None)
-    if found is None:
-        found = _compute_linear_setup(mesh, bonded, shear_inst, shear_lt, bulk, hourglass,
-                                      mass_scaling, quantile, volumetric_mass)
+    with _SETUPS_LOCK:
+        found = _SETUPS.pop(key, None)
+        if found is not None:
+            _SETUPS[key] = found
+            return found
+    found = _compute_linear_setup(mesh, bonded, shear_inst, shear_lt, bulk, hourglass,
+                                  mass_scaling, quantile, volumetric_mass)
+    with _SETUPS_LOCK:
         while len(_SETUPS) >= _SETUPS_KEPT:
             _SETUPS.pop(next(iter(_SETUPS)))
-    _SETUPS[key] = found
+        _SETUPS[key] = found
     return found
 
 
