@@ -557,15 +557,14 @@ def _advance_axisym(
     t_stop, t, dt, dt_prev, kind, T, D, t_table, d_table, H, hold_damping,
     u, v, f_int, f_c, mass, X, fix_tangent, state, glued, candidate, anchor, mode, mu_f,
     conn, bbar, hbar, vol, gamma, k_hg, mat, mu, alpha, K, g, decay, gain, s_prev, hist,
-    u_eval, energy, use_vm, vm, drift, since,
+    u_eval, energy, use_vm, vm, drift,
 ):
     """Step the axisymmetric model until the last force evaluation reaches ``t_stop``.
 
     With ``use_vm`` the steps take the volumetric mass (:func:`_coupled_update`; ``vm`` holds
     its arrays, :class:`_VolumetricArrays`), refreshed to the current state once an
     element's volumetric frequency has grown past ``drift`` times its design value
-    (:func:`solver.mass.volumetric_drift`) or when ``since[0]`` is negative; ``since[0]``
-    counts the steps since the last refresh.
+    (:func:`solver.mass.volumetric_drift`).
 
     Returns
     -------
@@ -592,19 +591,17 @@ def _advance_axisym(
         z_top = H - travel(t + dt, kind, T, D, t_table, d_table)
         damp = hold_damping if t >= T else 0.0
         if use_vm:
-            if since[0] < 0 or volumetric_drift(u, conn, bbar, hbar, grad_full, share, coef,
-                                                everywhere, b_now) > drift:
+            if volumetric_drift(u, conn, bbar, hbar, grad_full, share, coef, everywhere,
+                                b_now) > drift:
                 if _refresh_mass(u, conn, bbar, hbar, mass, fix_tangent, state, mode, held,
                                  everywhere, coef, pos, ptr, slot, grad_full, grad, band,
                                  True) >= 0:
                     return MASS_NOT_DEFINITE, -1, t, t, dt_prev, steps
-                since[0] = 0
             if _coupled_update(u, v, f_int, f_c, mass, X, fix_tangent, state, glued, candidate,
                                anchor, mode, z_top, dt, 0.5 * (dt_prev + dt), damp, energy,
                                conn, bbar, hbar, held, everywhere, coef, pos, ptr, slot,
                                grad_full, grad, band, y, acc, rhs) >= 0:
                 return MASS_NOT_DEFINITE, -1, t, t, dt_prev, steps
-            since[0] += 1
         else:
             _nodal_update(u, v, f_int, f_c, mass, X, fix_tangent, state, glued, candidate,
                           anchor, mode, mu_f, z_top, dt, 0.5 * (dt_prev + dt), damp, energy)
@@ -1110,7 +1107,6 @@ def _simulate(
         rhs=np.zeros((n_nodes, dim)),
         share=density * lin.share_unit if use_vm else np.zeros((0, 4)),
         b_now=np.zeros((n_vm, 4, 2)))
-    since = np.array([0], dtype=np.int64)
     k_hg = np.ascontiguousarray(mu_ref * k_hg_unit)
     share = mu / mu.sum(axis=1, keepdims=True)
     k_ratio = K / mu.sum(axis=1)
@@ -1178,7 +1174,7 @@ def _simulate(
                                 status_e, fe1, bool(parallel), u_eval, energy_acc)
         return _advance_axisym(*common, mesh.cells, ops.bbar, ops.hbar, ops.volume, ops.gamma,
                                k_hg, mat, mu, alpha, K, g, decay, gain, s_prev, hist, u_eval,
-                               energy_acc, use_vm, vm_arrays, float(mass_refresh_drift), since)
+                               energy_acc, use_vm, vm_arrays, float(mass_refresh_drift))
 
     def forces(uu):
         """Internal forces at ``uu`` without advancing any history (for the tangent)."""
