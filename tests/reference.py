@@ -156,3 +156,14 @@ def volumetric_mass_dense(cells, mass, grad, coefficient):
     for e in range(len(cells)):
         M[np.ix_(dofs[e], dofs[e])] += coefficient[e] * np.outer(b[e], b[e])
     return M.reshape(2 * n, 2 * n)
+
+
+def bulk_viscosity_dense(u, cells, ops: AxisymmetricOperators, coefficient):
+    """C = sum_e c_e b_e b_e^T (b_e of the cofactor twin) as a dense (n_dof, n_dof) array."""
+    n = len(u)
+    C = np.zeros((2 * n, 2 * n))
+    dofs = (2 * cells[:, :, None] + np.arange(2)).reshape(len(cells), 8)
+    b = volumetric_gradient_numpy(u, cells, ops).reshape(len(cells), 8)
+    for e in range(len(cells)):
+        C[np.ix_(dofs[e], dofs[e])] += coefficient[e] * np.outer(b[e], b[e])
+    return C
