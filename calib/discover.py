@@ -1229,7 +1229,8 @@ def _direct_prediction(ctx: LayerContext, model: Model, mu: float, alpha: float)
         def unit_force(strain, key=key, h=info.height_mm, ratio_levels=ratio_levels):
             strain = np.asarray(strain)
             ratio = np.interp(strain, ctx.data.levels, ratio_levels)
-            return ctx.forward.unit_forces(key, strain * h) * ratio
+            # read through the loader's contact fit, as the base model is (calib.fit)
+            return ctx.forward.unit_forces(key, strain * h + ctx.unit.contact_shift(key)) * ratio
 
         def force_fn(s, uf=unit_force):
             return mu * uf(s)

@@ -139,6 +139,12 @@ class FitSettings:
         Bounds of alpha in the fit.
     profile : bool
         Compute profile confidence intervals (lmfit ``conf_interval``).
+    contact_fit : bool
+        Read every simulation through the loader's contact fit: the measured travel starts
+        where that fit put the contact, a few micrometres after the touch on a smooth curve
+        (:func:`calib.loaders.contact_fit_bias`), so the simulated force at a measured travel
+        ``d`` is taken at ``d`` plus the same fit's offset on the simulated curve. ``False``
+        compares at ``d`` (0.9 % of the force at the 2 % level of the default sample).
     """
 
     levels: tuple[float, ...] = DEFAULT_LEVELS
@@ -150,6 +156,7 @@ class FitSettings:
     alpha_step: float = 0.5
     alpha_bounds: tuple[float, float] = (1.0, 25.0)
     profile: bool = True
+    contact_fit: bool = True
 
     def __post_init__(self):
         if self.residual not in ("absolute", "relative"):
@@ -433,16 +440,35 @@ class OgdenUnitResponse:
         #: discretisation correction per point (see :meth:`set_correction`)
         self.correction = np.ones(len(self.travel))
         self.mesh_ratio = np.ones(len(data.levels))
+        self._shifts: dict[CurveKey, float] = {}
 
     def key(self, alpha: float, geometry) -> CurveKey:
         """The forward solve of one geometry at ``alpha``."""
         return CurveKey(alpha=(float(alpha),), diameter_mm=geometry[0], height_mm=geometry[1],
                         nu=self.settings.nu, platen=self.settings.platen)
 
+    def contact_shift(self, key: CurveKey) -> float:
+        """Travel (mm) by which the loader's contact fit would start the solve's curve late.
+
+        Zero unless ``settings.contact_fit``; see :func:`calib.loaders.contact_fit_bias` (the
+        window ends at 10 % of the force at the last level).
+        """
+        if not self.settings.contact_fit:
+            return 0.0
+        shift = self._shifts.get(key)
+        if shift is None:
+            from .loaders import contact_fit_bias
+
+            shift = contact_fit_bias(self.forward.curve(key),
+                                     float(self.data.levels[-1]) * key.height_mm)
+            self._shifts[key] = shift
+        return shift
+
     def _raw(self, alpha: float) -> np.ndarray:
         out = np.empty(len(self.travel))
         for g, idx in self.groups.items():
-            out[idx] = self.forward.unit_forces(self.key(alpha, g), self.travel[idx])
+            key = self.key(alpha, g)
+            out[idx] = self.forward.unit_forces(key, self.travel[idx] + self.contact_shift(key))
         return out
 
     def direct(self, alpha: float) -> np.ndarray:
@@ -928,9 +954,11 @@ def fit_layer(cycles: Sequence, settings: FitSettings | None = None,
     rms = float(np.sqrt(np.mean((predicted[valid] - y_abs) ** 2)))
     curves = []
     for c in data.cycles:
-        spline = forward.curve(unit.key(alpha, (c.diameter_mm, c.height_mm)))
+        key = unit.key(alpha, (c.diameter_mm, c.height_mm))
+        spline = forward.curve(key)
         ratio = np.interp(spline.x / c.height_mm, data.levels, unit.mesh_ratio)
-        curves.append((spline.x, mu * spline(spline.x) * ratio))
+        # travel from where the loader's contact fit would put the contact (see contact_fit)
+        curves.append((spline.x - unit.contact_shift(key), mu * spline(spline.x) * ratio))
     return LayerFit(
         layer=data.layer, model="ogden", mu_Pa=float(mu), alpha=float(alpha), nu=settings.nu,
         mu_stderr_Pa=mu_se, alpha_stderr=alpha_se, mu_alpha_correlation=float(corr),

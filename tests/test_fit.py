@@ -21,7 +21,11 @@ RATES = (0.17, 0.83, 6.0)
 
 def _cycle(layer, sample, test, rate, mu, alpha, diameter=38.0, height=24.0, strain=0.3,
            noise_N=0.0, rng=None, mesh_scale=1.0):
-    """A loading branch straight from the solver (dense output), optionally with white noise."""
+    """A loading branch straight from the solver (dense output), optionally with white noise.
+
+    Its travel starts at the exact touch, not where the loader's contact fit would put it: fits
+    of such cycles take ``contact_fit=False``.
+    """
     mesh = axisymmetric_cylinder(diameter, height, round(14 * mesh_scale), round(18 * mesh_scale))
     r = simulate(Ogden(mu_Pa=mu, alpha=alpha, nu=0.499),
                  CompressionTest(diameter_mm=diameter, height_mm=height, strain=strain,
@@ -64,7 +68,7 @@ def test_noise_free_round_trip_recovers_the_truth():
     surrogate and discrete rollover events, ~1e-3 of the force)."""
     mu, alpha = 2165.0, 6.0
     cycles = _layer("C", mu, alpha, [(38.0, 24.0), (37.6, 24.3), (38.3, 23.8)])
-    fit = fit_layer(cycles, FitSettings(profile=False, mesh_correction=None))
+    fit = fit_layer(cycles, FitSettings(profile=False, mesh_correction=None, contact_fit=False))
     assert fit.mu_Pa == pytest.approx(mu, rel=2e-3)
     assert fit.alpha == pytest.approx(alpha, rel=2e-3)
     assert fit.rms_N < 5e-3
@@ -87,7 +91,7 @@ def test_noisy_round_trip_truth_inside_two_standard_errors():
         for t, rate in enumerate(RATES, start=1):
             cycles.append(_cycle("E", f"E{s}", t, rate, mu, alpha, d, h, noise_N=0.003,
                                  rng=rng, mesh_scale=2.0))
-    fit = fit_layer(cycles)
+    fit = fit_layer(cycles, FitSettings(contact_fit=False))
     mu_t = np.mean([p[0] for p in params])
     alpha_t = np.mean([p[1] for p in params])
     assert fit.mu_Pa == pytest.approx(mu_t, rel=0.02)
@@ -101,6 +105,58 @@ def test_noisy_round_trip_truth_inside_two_standard_errors():
     for s, (mu, alpha) in enumerate(params, start=1):
         assert per[f"E{s}"]["mu_Pa"] == pytest.approx(mu, rel=0.01)
         assert per[f"E{s}"]["alpha"] == pytest.approx(alpha, rel=0.02)
+
+
+def _logged(path, sample, test, rate, mu, alpha, hz, rng, approach_mm=0.5, noise_N=5e-4):
+    """A rig log of a fitting-mesh solve: approach, loading to 30 %, hold; seeded noise."""
+    from .test_loaders import Truth, write_log
+
+    r = simulate(Ogden(mu_Pa=mu, alpha=alpha, nu=0.499),
+                 CompressionTest(strain=0.3, rate_mm_per_s=rate), n_out=301)
+    peak = approach_mm + 7.2
+    t = np.arange(0.0, peak / rate + 0.3, 1.0 / hz)
+    d = np.minimum(rate * t, peak)
+    f = np.interp(d - approach_mm, r.displacement_mm, r.force_N, left=0.0)
+    f = f + noise_N * rng.standard_normal(len(t))
+    meta = {"layer": sample[0], "sample": sample, "test": test, "rate_mm_per_s": rate,
+            "diameter_mm": 38.0, "height_mm": 24.0}
+    return write_log(path / f"{sample[0]}/{sample}_t{test}_{rate}mms.csv",
+                     Truth(t, d, f, approach_mm, 0.0, noise_N), meta=meta)
+
+
+@pytest.mark.slow
+def test_round_trip_through_the_loader_needs_its_contact_fit(tmp_path):
+    """Rig logs of fitting-mesh solves (0.5 mN noise), loaded as a user would.
+
+    The loader's hinge fit finds the contact 2.8-4.4 um after the touch on this curve (the
+    model's estimate: 3.6 um), which moves the 2 % level by about 0.7 % of its force. Read
+    through the same fit (the default), the fit returns the truth to the solver's accuracy
+    (bound 2e-3 as in the noise-free round trip; measured 1e-4 for mu and alpha, -0.06 % at
+    the first level). Compared at the loader's travel as it is: mu +0.23 %, alpha -0.5 %,
+    and -0.58 % left at the first level (bound: more than twice the other's).
+    """
+    from calib.loaders import load_campaign
+
+    mu, alpha = 1875.0, 4.9
+    rng = np.random.default_rng(5)
+    for s in (1, 2, 3):
+        for t, (rate, hz) in enumerate(zip(RATES, (50.0, 100.0, 200.0)), start=1):
+            _logged(tmp_path, f"A{s}", t, rate, mu, alpha, hz, rng)
+    campaign = load_campaign(tmp_path)
+    assert len(campaign.cycles) == 9
+    fits = {flag: fit_campaign(campaign, FitSettings(profile=False, mesh_correction=None,
+                                                     contact_fit=flag),
+                               max_workers=1, progress=False).fits["A"]
+            for flag in (True, False)}
+    good, plain = fits[True], fits[False]
+    assert good.mu_Pa == pytest.approx(mu, rel=2e-3)
+    assert good.alpha == pytest.approx(alpha, rel=2e-3)
+
+    def first_level_bias(fit):
+        return float(np.nanmean(fit.predicted[:, 0] / fit.data.force[:, 0] - 1.0))
+
+    assert abs(first_level_bias(good)) < 2e-3
+    assert abs(first_level_bias(plain)) > 2.0 * abs(first_level_bias(good))
 
 
 def test_scaled_forces_scale_mu_only():
@@ -147,7 +203,8 @@ def test_dask_executor_fits_layers_on_a_local_cluster():
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster, \
             distributed.Client(cluster) as client:
-        result = fit_campaign(campaign, FitSettings(profile=False), scheduler=client,
+        result = fit_campaign(campaign, FitSettings(profile=False, contact_fit=False),
+                              scheduler=client,
                               progress=False)
     assert set(result.fits) == {"A", "F"}
     assert result.fits["F"].mu_Pa == pytest.approx(3100.0, rel=3e-3)
