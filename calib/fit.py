@@ -9,7 +9,10 @@ Every cycle of a layer is compared with *its own* simulation (its sample's diame
 at a set of strain levels along the loading branch (default 2, 4, ..., 30 %). The measured
 force at a level is a local linear regression of the branch within +-0.5 % strain, which
 averages the load-cell noise without biasing a smooth curve. Residuals are in newtons
-(``residual="relative"``: fractions of the measured force).
+(``residual="relative"``: fractions of the measured force). The measured travel starts where
+the loader's contact fit put the contact, which on a smooth stiffening curve is a few
+micrometres after the touch; each simulation is read through the same fit
+(``contact_fit``), so that both travels start alike.
 
 The weights come from the measured scatter. Samples of one layer differ (a few percent in
 stiffness), and a sample that is stiffer is stiffer at every level and in every test, so the
