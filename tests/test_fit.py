@@ -130,7 +130,7 @@ def test_round_trip_through_the_loader_needs_its_contact_fit(tmp_path):
 
     The loader's hinge fit finds the contact 2.8-4.4 um after the touch on this curve (the
     model's estimate: 3.6 um), which moves the 2 % level by about 0.7 % of its force. Read
-    through the same fit (the default), the fit returns the truth to the solver's accuracy
+    through the same fit (``contact_fit=True``), the fit returns the truth to the solver's accuracy
     (bound 2e-3 as in the noise-free round trip; measured 1e-4 for mu and alpha, -0.06 % at
     the first level). Compared at the loader's travel as it is: mu +0.23 %, alpha -0.5 %,
     and -0.58 % left at the first level (bound: more than twice the other's).
