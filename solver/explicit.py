@@ -187,7 +187,8 @@ class SimulationResult:
         ``external_J`` (work of the platen constraints), ``internal_J`` (path integral of the
         internal forces), ``strain_J`` (elastic energy stored in the state, long-term moduli),
         ``hourglass_J``, ``kinetic_J``, ``friction_J`` (work of friction forces, <= 0),
-        ``damping_J`` (work of the hold's damping forces, >= 0; zero without a hold).
+        ``damping_J`` (energy taken out by the hold's damping and the bulk viscosity, >= 0;
+        zero with neither).
     contact_radius_mm : ndarray, shape (n_out,)
         Current radius of the contact area on the top platen (mm).
     mesh : Mesh
@@ -990,8 +991,9 @@ def simulate(
         ``volumetric_mass=0``, the lumped fallback): the fraction of critical damping of each
         element's dilatational mode (:mod:`solver.viscosity`). Without it a Coulomb run's
         stick-slip decisions rectify the undamped volumetric ringing into an irregular force
-        that changes with the ramp (1-2 % at friction 0.15); with it the force at ramp ratios
-        10 to 80 agreed to 0.05 % (the same at 0.06 and 0.3). 0 switches it off.
+        that changes with the ramp (0.4-3 % between ratios 10 and 20 at friction 0.15); with
+        it the force at ratios 10 to 80 agreed to 0.05 % (the same at 0.06 and 0.3). Its work
+        is counted in ``damping_J``. 0 switches it off.
 
     Returns
     -------

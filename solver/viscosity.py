@@ -5,8 +5,9 @@ A lumped-mass explicit model of a gel at :math:`\nu = 0.499` rings in its volume
 platen force averages that ringing out, but a Coulomb platen does not: whether a contact
 node sticks or slips is decided on its instantaneous normal and tangential forces, which
 carry the ringing, and the decisions rectify it into an irregular, ramp-dependent force
-(the default test at friction 0.15: -21.3, -22.0, -21.5, -23.6 % off bonded at 3, 12, 24 and
-27 % strain with a ramp of 20 natural periods, -20.8, -20.5, -20.1, -21.5 % with 10).
+(the default test at friction 0.15: -21.3, -22.0, -22.4, -23.6 % off bonded at 3, 12, 24 and
+27 % strain with a ramp of 20 natural periods, -20.8, -20.5, -20.1, -21.5 % with 10; with
+this bulk viscosity -20.8, -20.4, -20.1, -21.5 % with either, and with 40 or 80).
 Explicit codes damp these modes with a bulk viscosity (Abaqus/Explicit's linear bulk
 viscosity, default 0.06 of critical in the element's dilatational mode); here the damping
 matrix of each element is its volumetric stiffness scaled to that fraction at the element's
