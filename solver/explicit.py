@@ -30,9 +30,9 @@ accelerations the constraints prescribe and the free ones solve
 :math:`M_{ff} a_f = -f_f - M_{fh} a_h` (:func:`_coupled_update`). The stable step comes from
 the exact element bound of the mass-scaled pencil at the start and from Lanczos on the
 tangent along the ramp (lumped masses: an element bound grown with each element's shape and
-tangent). Lumped-mass quads (Coulomb platens) damp their volumetric ringing with a linear bulk
-viscosity (:mod:`solver.viscosity`), without which the stick-slip decisions turn it into an
-irregular force. The
+tangent). Lumped-mass runs (Coulomb platens, hexahedra) damp their volumetric ringing with a
+linear bulk viscosity (:mod:`solver.viscosity`), without which the stick-slip decisions turn it
+into an irregular force. The
 platen force is then evaluated by virtual work in the static influence field :math:`w` (the
 displacement per unit travel of the linearised problem),
 
@@ -117,6 +117,7 @@ from .viscosity import (
     DEFAULT_BULK_VISCOSITY,
     bulk_viscosity_coefficient,
     bulk_viscosity_forces,
+    hex_bulk_viscosity_forces,
     step_factor,
 )
 
@@ -634,7 +635,7 @@ def _advance_hex(
     t_stop, t, dt, dt_prev, kind, T, D, t_table, d_table, H, hold_damping,
     u, v, f_int, f_c, mass, X, fix_tangent, state, glued, candidate, anchor, mode, mu_f,
     conn, bbar, vol, gamma, k_hg, mat, mu, alpha, K, g, decay, gain, s_prev, hist,
-    ptr, slot, fe, status_e, fe1, parallel, u_eval, energy, f_v,
+    ptr, slot, fe, status_e, fe1, parallel, u_eval, energy, c_bv, grad_bv, f_v,
 ):
     """Step the hexahedral model until the last force evaluation reaches ``t_stop``.
 
@@ -659,6 +660,8 @@ def _advance_hex(
         t_eval = t
         z_top = H - travel(t + dt, kind, T, D, t_table, d_table)
         damp = hold_damping if t >= T else 0.0
+        if c_bv.shape[0] > 0:
+            hex_bulk_viscosity_forces(u, v, conn, bbar, c_bv, grad_bv, f_v)
         _nodal_update(u, v, f_int, f_v, f_c, mass, X, fix_tangent, state, glued, candidate,
                       anchor, mode, mu_f, z_top, dt, 0.5 * (dt_prev + dt), damp, energy)
         dt_prev = dt
@@ -987,7 +990,7 @@ def simulate(
         turns as it deforms, and the turned part meets only lumped masses), and whenever a
         node lands on or leaves a platen.
     bulk_viscosity : float
-        Linear bulk viscosity of axisymmetric runs with lumped masses (Coulomb platens,
+        Linear bulk viscosity of runs with lumped masses (Coulomb platens, hexahedra,
         ``volumetric_mass=0``, the lumped fallback): the fraction of critical damping of each
         element's dilatational mode (:mod:`solver.viscosity`). Without it a Coulomb run's
         stick-slip decisions rectify the undamped volumetric ringing into an irregular force
@@ -1121,8 +1124,8 @@ def _simulate(
         rho_ratio = materials[0].density_kg_m3 / mu_ref
     density = rho_ratio * mu_ref
     natural_period = 2.0 * np.pi * math.sqrt(rho_ratio / omega2_1)
-    # bulk viscosity on the lumped-mass quads (see solver.viscosity); it shortens the step
-    viscous = not use_vm and not hexa and bulk_viscosity > 0.0
+    # bulk viscosity with lumped masses (see solver.viscosity); it shortens the step
+    viscous = not use_vm and bulk_viscosity > 0.0
     step_bv = step_factor(bulk_viscosity) if viscous else 1.0
     dt_stable = 2.0 * step_bv * math.sqrt(rho_ratio / omega2_e.max())
     # every output gets its own step: at most half the smallest output spacing
@@ -1184,7 +1187,7 @@ def _simulate(
     momentum = np.zeros((n_nodes, dim))
     c_bv = (bulk_viscosity_coefficient(K[mat], ops.volume, np.sqrt(omega2_e / rho_ratio),
                                        float(bulk_viscosity)) if viscous else np.zeros(0))
-    grad_bv = np.zeros((len(c_bv), 4, 2))
+    grad_bv = np.zeros((len(c_bv),) + ops.bbar.shape[1:])
     f_v = np.zeros((n_nodes, dim))  # bulk-viscous forces (zero without bulk viscosity)
 
     def kinetic(vel) -> float:
@@ -1214,7 +1217,8 @@ def _simulate(
         if hexa:
             return _advance_hex(*common, mesh.cells, ops.bbar, ops.volume, ops.gamma, k_hg,
                                 mat, mu, alpha, K, g, decay, gain, s_prev, hist, ptr, slot, fe,
-                                status_e, fe1, bool(parallel), u_eval, energy_acc, f_v)
+                                status_e, fe1, bool(parallel), u_eval, energy_acc, c_bv,
+                                grad_bv, f_v)
         return _advance_axisym(*common, mesh.cells, ops.bbar, ops.hbar, ops.volume, ops.gamma,
                                k_hg, mat, mu, alpha, K, g, decay, gain, s_prev, hist, u_eval,
                                energy_acc, use_vm, vm_arrays, float(mass_refresh_drift),

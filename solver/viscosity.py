@@ -28,7 +28,8 @@ proportional to :math:`\dot J`, which an incompressible gel keeps near zero. The
 the lagging velocity :math:`v^{n-1/2}`; the stable step shrinks by
 :math:`\sqrt{1 + \xi^2} - \xi` (0.94 at :math:`\xi = 0.06`).
 
-Array order as in :mod:`solver.kernels`.
+Hexahedra take the same damping with :math:`b_e = \partial \det \bar F_e / \partial u`
+(:func:`hex_bulk_viscosity_forces`). Array order as in :mod:`solver.kernels`.
 """
 
 from __future__ import annotations
@@ -38,10 +39,11 @@ import math
 import numpy as np
 
 from ._jit import njit
+from .kernels import _hex_state
 from .mass import element_dot, volumetric_gradient
 
 __all__ = ["DEFAULT_BULK_VISCOSITY", "bulk_viscosity_coefficient", "bulk_viscosity_forces",
-           "step_factor"]
+           "hex_bulk_viscosity_forces", "step_factor"]
 
 #: Fraction of critical damping of each element's dilatational mode (Abaqus/Explicit's
 #: default linear bulk viscosity).
@@ -102,3 +104,46 @@ def bulk_viscosity_forces(
             n = conn[e, a]
             out[n, 0] += s * grad[e, a, 0]
             out[n, 1] += s * grad[e, a, 1]
+
+
+@njit
+def hex_bulk_viscosity_forces(
+    u,  # (n_nodes, 3) displacement (m)
+    v,  # (n_nodes, 3) velocity (m/s)
+    conn,  # (n_elem, 8) int32
+    bbar,  # (n_elem, 8, 3) mean shape-function gradients (solver.kernels.hex_operators)
+    coefficient,  # (n_elem,) c_e; elements with zero get no damping
+    grad,  # (n_elem, 8, 3) work array: b_e = cof(F) bbar_a at u
+    out,  # (n_nodes, 3) output: f_v = sum_e c_e b_e (b_e . v) (N)
+):
+    """Bulk-viscous nodal forces of the hexahedra, :math:`b_e` by the cofactor of F."""
+    out[:, :] = 0.0
+    for e in range(conn.shape[0]):
+        if not coefficient[e] > 0.0:
+            continue
+        F00, F01, F02, F10, F11, F12, F20, F21, F22 = _hex_state(u, conn, bbar, e)
+        c00 = F11 * F22 - F12 * F21
+        c01 = F12 * F20 - F10 * F22
+        c02 = F10 * F21 - F11 * F20
+        c10 = F02 * F21 - F01 * F22
+        c11 = F00 * F22 - F02 * F20
+        c12 = F01 * F20 - F00 * F21
+        c20 = F01 * F12 - F02 * F11
+        c21 = F02 * F10 - F00 * F12
+        c22 = F00 * F11 - F01 * F10
+        s = 0.0
+        for a in range(8):
+            bx = bbar[e, a, 0]
+            by = bbar[e, a, 1]
+            bz = bbar[e, a, 2]
+            grad[e, a, 0] = c00 * bx + c01 * by + c02 * bz
+            grad[e, a, 1] = c10 * bx + c11 * by + c12 * bz
+            grad[e, a, 2] = c20 * bx + c21 * by + c22 * bz
+            n = conn[e, a]
+            s += grad[e, a, 0] * v[n, 0] + grad[e, a, 1] * v[n, 1] + grad[e, a, 2] * v[n, 2]
+        s *= coefficient[e]
+        for a in range(8):
+            n = conn[e, a]
+            out[n, 0] += s * grad[e, a, 0]
+            out[n, 1] += s * grad[e, a, 1]
+            out[n, 2] += s * grad[e, a, 2]

@@ -11,7 +11,12 @@ import pytest
 from solver import CompressionTest, Ogden, simulate
 from solver.kernels import axisymmetric_operators
 from solver.mesh import axisymmetric_cylinder
-from solver.viscosity import bulk_viscosity_coefficient, bulk_viscosity_forces, step_factor
+from solver.viscosity import (
+    bulk_viscosity_coefficient,
+    bulk_viscosity_forces,
+    hex_bulk_viscosity_forces,
+    step_factor,
+)
 
 from .reference import bulk_viscosity_dense, distorted_axisym_mesh
 
@@ -42,6 +47,30 @@ def test_forces_match_the_dense_damping_matrix(seed):
     bulk_viscosity_forces(u, still, base.cells, ops.bbar, ops.hbar, coef, np.ones((n, 2), bool),
                           np.zeros((len(base.cells), 4, 2)), out)
     assert np.abs(out).max() < 1e-12 * np.abs(expected).max()
+
+
+def test_hex_forces_match_the_dense_damping_matrix():
+    """b_e = cof(F) bbar_a of the hexahedra against NumPy's det(F) F^-T, on a deformed mesh."""
+    from solver import hex_cylinder
+    from solver.kernels import hex_operators
+
+    mesh = hex_cylinder(38.0, 24.0, 2, 1, 2)
+    ops = hex_operators(mesh.points, mesh.cells)
+    rng = np.random.default_rng(3)
+    n, ne = len(mesh.points), len(mesh.cells)
+    u = rng.normal(0.0, 3e-4, mesh.points.shape)
+    v = rng.normal(0.0, 1e-3, mesh.points.shape)
+    coef = rng.uniform(0.5, 2.0, ne)
+    coef[::3] = 0.0
+    out = np.zeros((n, 3))
+    hex_bulk_viscosity_forces(u, v, mesh.cells, ops.bbar, coef, np.zeros((ne, 8, 3)), out)
+    F = np.eye(3) + np.einsum("eai,eaj->eij", u[mesh.cells], ops.bbar)
+    cof = np.linalg.det(F)[:, None, None] * np.transpose(np.linalg.inv(F), (0, 2, 1))
+    b = np.einsum("eij,eaj->eai", cof, ops.bbar)  # (ne, 8, 3)
+    s = coef * np.einsum("eai,eai->e", b, v[mesh.cells])
+    expected = np.zeros((n, 3))
+    np.add.at(expected, mesh.cells, s[:, None, None] * b)
+    np.testing.assert_allclose(out, expected, rtol=1e-10, atol=1e-12 * np.abs(expected).max())
 
 
 def test_coefficient_and_step_factor():
