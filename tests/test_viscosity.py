@@ -124,3 +124,16 @@ def test_coulomb_curve_no_longer_depends_on_the_ramp(coulomb):
     g10, g20 = (np.interp(LEVELS, r.displacement_mm, r.force_N) for r in (
         simulate(MATERIAL, test, quasi_static_ratio=q, bulk_viscosity=0.0) for q in (10.0, 20.0)))
     assert np.abs(g10 / g20 - 1.0).max() > 5e-3
+
+
+def test_bulk_viscosity_is_on_by_default_for_coulomb_platens_only():
+    """Coulomb runs take 0.06 of critical by default; other lumped-mass runs none (the
+    bonded lumped fallback to 80 % inverted an element with it, see ``simulate``)."""
+    lumped = CompressionTest(strain=0.05)
+    np.testing.assert_array_equal(
+        simulate(MATERIAL, lumped, volumetric_mass=0.0).force_N,
+        simulate(MATERIAL, lumped, volumetric_mass=0.0, bulk_viscosity=0.0).force_N)
+    slip = CompressionTest(strain=0.05, platen="coulomb", friction=0.2)
+    default = simulate(MATERIAL, slip).force_N
+    np.testing.assert_array_equal(default, simulate(MATERIAL, slip, bulk_viscosity=0.06).force_N)
+    assert not np.array_equal(default, simulate(MATERIAL, slip, bulk_viscosity=0.0).force_N)
