@@ -1018,13 +1018,8 @@ def simulate(
         If the mesh does not fit the test, the materials do not cover its layers, or an
         argument is out of range.
     """
-    options = dict(
-        quasi_static_ratio=quasi_static_ratio, n_out=n_out, hourglass=hourglass,
-        mass_scaling=mass_scaling, mass_scaling_quantile=mass_scaling_quantile,
-        dt_safety=dt_safety, parallel=parallel, max_hourglass_ratio=max_hourglass_ratio,
-        influence=influence, influence_updates=influence_updates,
-        volumetric_mass=volumetric_mass, mass_refresh_drift=mass_refresh_drift,
-        bulk_viscosity=bulk_viscosity)
+    # the keyword arguments as given (first statement: locals() holds only the arguments)
+    options = {k: v for k, v in locals().items() if k not in ("material", "test", "mesh")}
     if test is None:
         test = CompressionTest()
     try:
@@ -1055,26 +1050,11 @@ def _uses_volumetric_mass(mesh, test, mass_scaling, volumetric_mass) -> bool:
                 and (test is None or test.platen != "coulomb"))
 
 
-def _simulate(
-    material: Ogden | Sequence[Ogden],
-    test: CompressionTest | None = None,
-    mesh: Mesh | None = None,
-    *,
-    quasi_static_ratio: float | None = None,
-    n_out: int = 61,
-    hourglass: float = 0.05,
-    mass_scaling: bool = True,
-    mass_scaling_quantile: float = 0.1,
-    dt_safety: float = 0.8,
-    parallel: bool = True,
-    max_hourglass_ratio: float = 0.1,
-    influence: str | None = None,
-    influence_updates: int = 10,
-    volumetric_mass: float = 1.0,
-    mass_refresh_drift: float = 1.1,
-    bulk_viscosity: float | None = None,
-) -> SimulationResult:
-    """The run of :func:`simulate` (its arguments)."""
+def _simulate(material, test, mesh, *, quasi_static_ratio, n_out, hourglass, mass_scaling,
+              mass_scaling_quantile, dt_safety, parallel, max_hourglass_ratio, influence,
+              influence_updates, volumetric_mass, mass_refresh_drift,
+              bulk_viscosity) -> SimulationResult:
+    """The run of :func:`simulate`: its arguments, defaults resolved there (``test`` given)."""
     if mesh is None:
         mesh = axisymmetric_cylinder(test.diameter_mm, test.height_mm)
     if not _fits(mesh, test):
