@@ -9,7 +9,9 @@ set in one place:
   of :mod:`solver.kernels` was seen here). Unless the user sets ``NUMBA_CACHE_DIR``, the
   cache therefore lives in a folder named by a hash of every source file of this package
   (under ``$XDG_CACHE_HOME``, default ``~/.cache``, in ``ogden-calib/numba``): any change of
-  the solver starts a fresh cache. CI sets its own fresh ``NUMBA_CACHE_DIR``.
+  the solver starts a fresh cache. CI sets its own fresh ``NUMBA_CACHE_DIR``. Cache writes
+  and reads hold a lock on the folder (:func:`_locked_cache`), so that processes compiling
+  at once (a cold cache and a pool of fitting workers) cannot corrupt it.
 - ``fastmath=False``: the kernels compare stretches for equality (repeated principal stretches)
   and check for NaN; fast-math would license the compiler to drop both.
 - ``error_model="numpy"``: division by zero gives inf/NaN (which the time loop detects and
@@ -23,7 +25,7 @@ which the tests use once to check the kernels against their NumPy twins without 
 
 from __future__ import annotations
 
-import functools
+import contextlib
 import hashlib
 import os
 from pathlib import Path
@@ -56,17 +58,66 @@ import numba  # noqa: E402
 # before this module, set its configuration too (read when each kernel is decorated)
 numba.config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]
 
+@contextlib.contextmanager
+def _cache_lock(exclusive: bool):
+    """Hold an inter-process lock on the cache folder (POSIX ``flock``; no-op elsewhere)."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        yield
+        return
+    folder = Path(numba.config.CACHE_DIR)
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / ".ogden-calib.lock", "a+b") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def _locked_cache(dispatcher):
+    """Make a kernel's cache reads and writes safe against other processes.
+
+    Numba numbers a kernel's data files by the entries its index holds when it saves one: two
+    processes compiling different signatures of one kernel at once can both write file 1
+    and leave an index that maps one signature to the other's machine code (numba issues
+    #4807 and #10128), which crashes every later process that loads it. A cache folder
+    poisoned this way crashed a hexahedral solve here on every run until it was deleted.
+    Saves therefore hold an exclusive lock on the cache folder, loads a shared one.
+    """
+    cache = getattr(dispatcher, "_cache", None)
+    if cache is None or not hasattr(cache, "save_overload"):  # NUMBA_DISABLE_JIT, no cache
+        return dispatcher
+    save, load = cache.save_overload, cache.load_overload
+
+    def save_overload(sig, data):
+        with _cache_lock(exclusive=True):
+            return save(sig, data)
+
+    def load_overload(sig, target_context):
+        with _cache_lock(exclusive=False):
+            return load(sig, target_context)
+
+    cache.save_overload, cache.load_overload = save_overload, load_overload
+    return dispatcher
+
+
+def _decorator(**flags):
+    def decorate(func):
+        return _locked_cache(numba.njit(cache=True, fastmath=False, error_model="numpy",
+                                        nogil=True, **flags)(func))
+    return decorate
+
+
 #: Decorator for every kernel in the package.
-njit = functools.partial(numba.njit, cache=True, fastmath=False, error_model="numpy", nogil=True)
+njit = _decorator()
 
 #: Decorator for the small per-element helpers (state, stress, spectral decomposition,
 #: material law): inlined into their callers at numba's IR level. Left to LLVM, the calls with
 #: a dozen array arguments (and the row views ``mu[m]``) were not inlined and cost more than
 #: the arithmetic: the hexahedron's force kernel ran 1.4x faster inlined.
-njit_inline = functools.partial(numba.njit, cache=True, fastmath=False, error_model="numpy",
-                                nogil=True, inline="always")
+njit_inline = _decorator(inline="always")
 
 #: Decorator for kernels with a ``numba.prange`` loop (parallel over elements).
-njit_parallel = functools.partial(
-    numba.njit, cache=True, fastmath=False, error_model="numpy", nogil=True, parallel=True
-)
+njit_parallel = _decorator(parallel=True)

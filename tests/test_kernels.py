@@ -205,3 +205,77 @@ def test_jit_cache_folder_follows_every_solver_source(tmp_path, monkeypatch):
     assert _source_keyed_cache_dir(package) == first
     (package / "materials.py").write_text((package / "materials.py").read_text() + "\n# edit\n")
     assert _source_keyed_cache_dir(package) != first
+
+
+_CACHE_SCRIPT = """
+import numpy as np
+from solver._jit import njit
+
+@njit
+def twice(x):
+    return x + x
+
+assert twice(np.arange(3)).sum() == 6
+"""
+
+
+def test_jit_cache_writes_wait_for_the_folder_lock(tmp_path):
+    """A process saving a compiled kernel waits while another holds the cache folder's lock.
+
+    Unlocked, two processes compiling different signatures of one kernel at once can give
+    both data files the same number and leave the index mapping one signature to the other's
+    code (numba #4807): a cache folder poisoned this way crashed a hexahedral solve here on
+    every run until it was deleted. Here the test holds the lock
+    (:func:`solver._jit._cache_lock`) while a subprocess compiles into a cold cache: no index
+    may appear until the lock is released, then the subprocess completes.
+    """
+    import fcntl
+    import os
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    script = tmp_path / "kernel.py"
+    script.write_text(_CACHE_SCRIPT)
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache),
+           "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    with open(cache / ".ogden-calib.lock", "a+b") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        child = subprocess.Popen([sys.executable, str(script)], env=env,
+                                 stderr=subprocess.PIPE, text=True)
+        try:
+            deadline = time.monotonic() + 12.0  # import and compile take 2-5 s here
+            while time.monotonic() < deadline and child.poll() is None:
+                time.sleep(0.2)
+            assert child.poll() is None, "the kernel's process did not wait for the lock"
+            assert not list(cache.rglob("*.nbi")), "an index was written under the lock"
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+    _, err = child.communicate(timeout=120)
+    assert child.returncode == 0, err[-2000:]
+    assert list(cache.rglob("*.nbi")) and list(cache.rglob("*.nbc"))
+
+
+def test_every_solver_kernel_saves_its_cache_under_the_lock():
+    import numba
+
+    import solver.explicit
+    import solver.kernels
+    import solver.loading
+    import solver.mass
+    import solver.stiffness
+    import solver.viscosity
+
+    found = 0
+    for module in (solver.explicit, solver.kernels, solver.loading, solver.mass,
+                   solver.stiffness, solver.viscosity):
+        for name, obj in vars(module).items():
+            if isinstance(obj, numba.core.registry.CPUDispatcher) \
+                    and obj.__module__ == module.__name__:
+                found += 1
+                assert "_locked_cache" in obj._cache.save_overload.__qualname__, name
+                assert "_locked_cache" in obj._cache.load_overload.__qualname__, name
+    assert found >= 20
