@@ -10,6 +10,13 @@ off (so every round-1 candidate's dBIC and held-out gain is recorded), the named
 decided with the current thresholds, and one JSON line per run is appended to
 ``OUT/runs.jsonl``. ``--summary`` prints the confusion table and, for null runs, the thresholds
 that keep the false-positive rate at or below 5 %.
+
+``--truth-code felupe`` makes the campaigns' curves with FElupe instead of this project's
+solver (an independent code; scenarios without Prony terms or Coulomb platens), and a
+scenario may carry its own magnitude, e.g. wholly unbonded (frictionless) platens::
+
+    python -m experiments.confusion --truth-code felupe --out runs/felupe \
+        --scenarios clean,platen_slip@1000,contact_offset,machine_compliance,compressibility
 """
 
 from __future__ import annotations
@@ -27,7 +34,7 @@ from experiments.scenarios import SCENARIOS
 
 
 def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: float = 1.0,
-            keep: Path | None = None) -> dict:
+            keep: Path | None = None, truth_code: str = "solver") -> dict:
     """Generate one campaign, run discovery with every candidate recorded, return a record."""
     from calib.discover import THRESHOLDS, discover_campaign
     from calib.loaders import load_campaign
@@ -37,7 +44,7 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
     folder = tmp / "campaign"
     start = time.perf_counter()
     generate_campaign(folder, scenario=scenario, seed=seed, layers=tuple(layers), fast=fast,
-                      magnitude=magnitude)
+                      magnitude=magnitude, truth_code=truth_code)
     truth = json.loads((folder / "truth.json").read_text())
     campaign = load_campaign(folder)
     t_gen = time.perf_counter() - start
@@ -50,7 +57,8 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
                   for c in result.rounds[0]]
     record = {
         "scenario": scenario, "seed": seed, "layers": layers, "fast": fast,
-        "magnitude": magnitude, "truth": truth["scenario"].get("parameters", {}),
+        "magnitude": magnitude, "truth_code": truth_code,
+        "truth": truth["scenario"].get("parameters", {}),
         "candidates": candidates,
         "rms_before_N": result.rms_before_N, "rms_after_N": result.rms_after_N,
         "heldout_before": {k: v["rms_N"] for k, v in result.heldout_before.items()},
@@ -175,7 +183,10 @@ def main(argv=None) -> int:
     p.add_argument("--seeds", default="1", help="comma-separated seeds for the scenarios")
     p.add_argument("--layers", default="A,D", help="layers of each generated campaign")
     p.add_argument("--fast", action="store_true", help="generate on the fitting mesh")
-    p.add_argument("--magnitude", type=float, default=1.0)
+    p.add_argument("--magnitude", type=float, default=1.0,
+                   help="of every scenario without its own (NAME@M in --scenarios)")
+    p.add_argument("--truth-code", choices=("solver", "felupe"), default="solver",
+                   help="the code that makes the campaigns' curves")
     p.add_argument("--out", required=True, help="folder for runs.jsonl")
     p.add_argument("--summary", action="store_true", help="only print the summary of OUT")
     args = p.parse_args(argv)
@@ -191,8 +202,13 @@ def main(argv=None) -> int:
             names = list(SCENARIOS) if args.scenarios == "all" else args.scenarios.split(",")
             seeds = [int(s) for s in args.seeds.split(",")]
             jobs += [(s, seed) for s in names for seed in seeds]
-        for scenario, seed in jobs:
-            record = run_one(scenario, seed, layers, args.fast, args.magnitude)
+        for name, seed in jobs:
+            scenario, _, own = name.partition("@")
+            if scenario not in SCENARIOS:
+                p.error(f"unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
+            magnitude = float(own) if own else args.magnitude
+            record = run_one(scenario, seed, layers, args.fast, magnitude,
+                             truth_code=args.truth_code)
             with log.open("a") as fh:
                 fh.write(json.dumps(record, default=float) + "\n")
             print(f"{scenario} seed {seed}: named {record['named']} "

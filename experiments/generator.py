@@ -18,7 +18,12 @@ How one campaign is made
    mesh than the fitting default (24 x 30 quads; ``fast=True`` uses the default 14 x 18).
    Hyperelastic runs are independent of the speed and proportional to the modulus
    (``solver.explicit``), so one run per sample serves all its tests (preconditioning included);
-   viscoelastic runs are made per cycle at the cycle's speed.
+   viscoelastic runs are made per cycle at the cycle's speed. With ``truth_code="felupe"``
+   the hyperelastic runs come from an independent code instead: FElupe's static r-z solution
+   (:func:`experiments.felupe_reference.compression_curve`, quadratic 16 x 16 graded cells,
+   mixed formulation, penalty contact of the side rolling onto bonded platens), for the
+   scenarios it can run (bonded or frictionless platens, no rate dependence). The toolkit
+   then fits data that its own discretisation did not make.
 3. *Rig*: the loading curve in platen travel from the first touch, :math:`x`, follows from the
    simulated curve :math:`F_\mathrm{sim}(u)` by the scenario's rig-side effects (contact toe,
    series compliance), interpolated monotonically (PCHIP) onto the logger's samples. The rig
@@ -113,6 +118,11 @@ STRAIN = 0.3
 
 #: Meshes (n_radial, n_axial): generation and ``fast`` (the fitting default).
 FINE_MESH = (24, 30)
+#: The codes that can make a campaign's curves (:class:`CampaignSpec`).
+TRUTH_CODES = ("solver", "felupe")
+#: FElupe truth: r-z quadratic cells (radial, axial) and equal load increments to 31 %.
+FELUPE_MESH = (16, 16)
+FELUPE_INCREMENTS = 62
 FAST_MESH = (14, 18)
 #: Solver output points along the ramp (interpolated by PCHIP onto the samples).
 N_OUT = 121
@@ -222,6 +232,10 @@ class CampaignSpec:
         Platen speeds (mm/s), one test per speed per sample.
     fast : bool
         Simulate on the fitting default mesh instead of the finer generation mesh.
+    truth_code : {"solver", "felupe"}
+        The code that makes the hyperelastic curves: this project's explicit solver, or FElupe
+        (static, independent; bonded or frictionless platens, no Prony terms; ``fast`` then
+        has no effect).
     sensor, scatter, programme
         Sensor model, sample scatter and rig programme.
     filename_only_probability : float
@@ -235,6 +249,7 @@ class CampaignSpec:
     n_samples: int = 3
     rates: tuple[float, ...] = RATES
     fast: bool = False
+    truth_code: str = "solver"
     sensor: SensorModel = dataclasses.field(default_factory=SensorModel)
     scatter: Scatter = dataclasses.field(default_factory=Scatter)
     programme: RigProgramme = dataclasses.field(default_factory=RigProgramme)
@@ -257,8 +272,17 @@ class CampaignSpec:
         object.__setattr__(self, "rates", rates)
         if not 0 <= self.filename_only_probability <= 1:
             raise ValueError("filename_only_probability must lie in [0, 1]")
+        if self.truth_code not in TRUTH_CODES:
+            raise ValueError(f"truth_code {self.truth_code!r} is not one of "
+                             f"{', '.join(TRUTH_CODES)}")
         for layer in self.layers:  # the effect must be valid at every layer's Table 1 truth
-            scenario.law(*TABLE_1[layer], test=len(rates), magnitude=self.magnitude)
+            law = scenario.law(*TABLE_1[layer], test=len(rates), magnitude=self.magnitude)
+            if self.truth_code == "felupe" and (law.viscoelastic or law.platen == "coulomb"):
+                raise ValueError(
+                    f"scenario {self.scenario!r} at magnitude {self.magnitude:g} needs "
+                    f"{'a Prony series' if law.viscoelastic else 'Coulomb platens'}, which the "
+                    "FElupe truth does not run (static hyperelastic, bonded or frictionless "
+                    "platens; platen_slip is frictionless from magnitude 150)")
 
     @property
     def mesh_size(self) -> tuple[int, int]:
@@ -271,8 +295,11 @@ class CampaignSpec:
             "scenario": self.scenario, "magnitude": float(self.magnitude), "seed": self.seed,
             "layers": list(self.layers), "n_samples": self.n_samples,
             "rates_mm_per_s": list(self.rates), "fast": self.fast,
-            "mesh": {"n_radial": self.mesh_size[0], "n_axial": self.mesh_size[1],
-                     "n_out": N_OUT},
+            "truth_code": self.truth_code,
+            "mesh": ({"n_radial": self.mesh_size[0], "n_axial": self.mesh_size[1],
+                      "n_out": N_OUT} if self.truth_code == "solver" else
+                     {"code": "felupe", "n_radial": FELUPE_MESH[0], "n_axial": FELUPE_MESH[1],
+                      "order": "quadratic", "increments": FELUPE_INCREMENTS}),
             "sensor": self.sensor.to_dict(), "scatter": dataclasses.asdict(self.scatter),
             "programme": dataclasses.asdict(self.programme),
             "filename_only_probability": self.filename_only_probability,
@@ -422,6 +449,18 @@ def _simulate_curve(material: Ogden, meta: CycleMeta, law: CycleLaw, mesh_size, 
     return np.asarray(result.displacement_mm, float), np.asarray(result.force_N, float)
 
 
+def _felupe_curve(material: Ogden, meta: CycleMeta, law: CycleLaw):
+    """Loading curve (sample compression u in mm, force in N) of one FElupe solve."""
+    from .felupe_reference import compression_curve
+
+    result = compression_curve(list(material.mu_Pa), list(material.alpha), material.nu,
+                               meta.diameter_mm, meta.height_mm, strain=STRAIN + 0.01,
+                               platen=law.platen, n_radial=FELUPE_MESH[0],
+                               n_axial=FELUPE_MESH[1], n_increments=FELUPE_INCREMENTS)
+    return (np.asarray(result["displacement_mm"], float),
+            np.asarray(result["force_N"], float))
+
+
 class _CurveCache:
     """Solver runs of one campaign, reusing hyperelastic runs across tests and moduli.
 
@@ -430,7 +469,9 @@ class _CurveCache:
     (``solver.explicit``), so it is stored per unit modulus.
     """
 
-    def __init__(self, progress: Callable[[str], None] | None = None):
+    def __init__(self, progress: Callable[[str], None] | None = None,
+                 truth_code: str = "solver"):
+        self.truth_code = truth_code
         self._store: dict = {}
         self.n_runs = 0
         self.wall_s = 0.0
@@ -453,15 +494,19 @@ class _CurveCache:
             if material.prony is None:
                 unit = dataclasses.replace(material, mu_Pa=tuple(m / mu0 for m in
                                                                   material.mu_Pa))
-                u, f = _simulate_curve(unit, meta, law, mesh_size, rate)
+                if self.truth_code == "felupe":
+                    u, f = _felupe_curve(unit, meta, law)
+                else:
+                    u, f = _simulate_curve(unit, meta, law, mesh_size, rate)
             else:
                 u, f = _simulate_curve(material, meta, law, mesh_size, rate)
             self.wall_s += time.perf_counter() - start
             self.n_runs += 1
             self._store[key] = (u, f)
             if self._progress:
-                self._progress(f"  solver run {self.n_runs}: {meta.sample} "
-                               f"({key[0]}, {mesh_size[0]}x{mesh_size[1]}) in "
+                size = FELUPE_MESH if self.truth_code == "felupe" else mesh_size
+                self._progress(f"  {self.truth_code} run {self.n_runs}: {meta.sample} "
+                               f"({key[0]}, {size[0]}x{size[1]}) in "
                                f"{time.perf_counter() - start:.2f} s")
         u, f = self._store[key]
         return u, f * scale
@@ -701,9 +746,10 @@ def generate_campaign(out: str | os.PathLike, spec: CampaignSpec | None = None, 
     scenario = get_scenario(spec.scenario)
     samples, cycles = plan_campaign(spec)
     say(f"generating {len(cycles)} cycles: scenario {spec.scenario} (M = {spec.magnitude:g}), "
-        f"seed {spec.seed}, layers {','.join(spec.layers)}, mesh {spec.mesh_size[0]}x"
-        f"{spec.mesh_size[1]}")
-    cache = _CurveCache(progress)
+        f"seed {spec.seed}, layers {','.join(spec.layers)}, "
+        + (f"mesh {spec.mesh_size[0]}x{spec.mesh_size[1]}" if spec.truth_code == "solver" else
+           f"FElupe {FELUPE_MESH[0]}x{FELUPE_MESH[1]} quadratic"))
+    cache = _CurveCache(progress, spec.truth_code)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
     try:
@@ -814,6 +860,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--magnitude", type=float, default=1.0)
     parser.add_argument("--layers")
     parser.add_argument("--fast", action="store_true")
+    parser.add_argument("--truth-code", choices=TRUTH_CODES, default="solver",
+                        help="the code that makes the curves (felupe: independent, static)")
     parser.add_argument("--overwrite", action="store_true")
     args = parser.parse_args(argv)
 
@@ -827,7 +875,8 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("--out is required unless --embedded")
         summary = generate_campaign(args.out, scenario=args.scenario, seed=args.seed,
                                     magnitude=args.magnitude, layers=args.layers,
-                                    fast=args.fast, overwrite=args.overwrite, progress=say)
+                                    fast=args.fast, truth_code=args.truth_code,
+                                    overwrite=args.overwrite, progress=say)
     print(json.dumps(summary.to_dict()))
     return 0
 

@@ -21,7 +21,9 @@ Scenarios and their truth at magnitude :math:`M` (:math:`M = 1` values in bracke
     from 0.17 to 6 mm/s (1.3 at 0.83 mm/s), like the doubling of the thesis' Fig. 11.
 ``platen_slip``
     The platens are not bonded: Coulomb friction with coefficient :math:`0.15 / M` [0.15]
-    instead of the sandpaper bond (:math:`M \to 0`: infinite friction, i.e. bonded).
+    instead of the sandpaper bond (:math:`M \to 0`: infinite friction, i.e. bonded). Below
+    friction 0.001 (:math:`M \ge 150`) the platens are frictionless: wholly unbonded faces,
+    e.g. lubricated platens (also what :mod:`experiments.generator`'s FElupe truth can run).
 ``contact_offset``
     An uneven (domed) top face: the platen first touches the sample at travel 0 but meets the
     full face only later. With offset :math:`\delta = 0.3 M` mm [0.3 mm] the force is
@@ -83,6 +85,9 @@ NU_ASSUMED = 0.499
 G1_UNIT = 0.6
 TAU1_S = 0.5
 FRICTION_UNIT = 0.15
+#: Below this friction coefficient the slip scenario's platens are frictionless (M >= 150):
+#: the solver's Coulomb platens at friction 1e-4 give the frictionless curve within 0.1 %.
+FRICTIONLESS_BELOW = 1e-3
 OFFSET_UNIT_MM = 0.3
 COMPLIANCE_UNIT_MM_PER_N = 0.15
 NU_DROP_UNIT = 0.079
@@ -100,9 +105,9 @@ class CycleLaw:
     ----------
     material : solver.Ogden
         The sample's material in this test (long-term moduli if viscoelastic).
-    platen : {"bonded", "coulomb"}
+    platen : {"bonded", "coulomb", "frictionless"}
     friction : float
-        Coulomb coefficient (0 when bonded).
+        Coulomb coefficient (0 when bonded or frictionless).
     contact_offset_mm : float
         Travel between the first touch and full-face contact, :math:`\\delta` (mm).
     compliance_mm_per_N : float
@@ -165,11 +170,20 @@ def _rate(mu, alpha, test, M):
                           prony=Prony(g=(g1,), tau_s=(TAU1_S,))))
 
 
-def _slip(mu, alpha, test, M):
+def _slip_platen(M: float) -> tuple[str, float]:
+    """Platen condition and friction of the slip scenario at magnitude ``M``."""
     if M == 0.0:
+        return "bonded", 0.0
+    friction = FRICTION_UNIT / M
+    return ("frictionless", 0.0) if friction < FRICTIONLESS_BELOW else ("coulomb", friction)
+
+
+def _slip(mu, alpha, test, M):
+    platen, friction = _slip_platen(M)
+    if platen == "bonded":
         return _clean(mu, alpha, test, M)
-    return CycleLaw(Ogden(mu_Pa=mu, alpha=alpha, nu=NU_ASSUMED), platen="coulomb",
-                    friction=FRICTION_UNIT / M)
+    return CycleLaw(Ogden(mu_Pa=mu, alpha=alpha, nu=NU_ASSUMED), platen=platen,
+                    friction=friction)
 
 
 def _offset(mu, alpha, test, M):
@@ -270,8 +284,8 @@ class Scenario:
         if self.name == "rate_dependence":
             p = {"g1": 1.0 - (1.0 - G1_UNIT) ** M, "tau1_s": TAU1_S}
         elif self.name == "platen_slip":
-            p = {"platen": "bonded" if M == 0 else "coulomb",
-                 "friction": None if M == 0 else FRICTION_UNIT / M}
+            platen, friction = _slip_platen(M)
+            p = {"platen": platen, "friction": None if platen == "bonded" else friction}
         elif self.name == "contact_offset":
             p = {"contact_offset_mm": OFFSET_UNIT_MM * M,
                  "toe_length_mm": 2.0 * OFFSET_UNIT_MM * M}
