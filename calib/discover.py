@@ -537,8 +537,11 @@ class PlatenSlip(_GridForwardEffect):
     # the generated slip campaign (friction 0.15) the candidate returns to bonded when the
     # levels stop at 20 %, and is worse than bonded at 0.15 over all levels (tabulated at four
     # alphas too; on the generating mesh's density 0.15 beats bonded, 0.05 fits better still).
-    # The leading candidate is still re-tabulated at its own fitted alpha.
-    alpha_offsets = (0.0,)
+    # Tabulated at four alphas (as compressibility): wholly unbonded platens lower the base
+    # fit's alpha by about one (5 -> 4 on FElupe-made frictionless data), and tabulated at
+    # that alpha alone the candidate could not move alpha back and ended near bonded
+    # (friction 0.86, dBIC -11; at four alphas friction 0.00, dBIC -412). The leading
+    # candidate is still re-tabulated at its own fitted alpha.
 
     def overrides(self, value):
         if value >= 1.0:

@@ -293,3 +293,32 @@ def test_hidden_compressibility_is_named_with_its_nu(tmp_path):
     assert first.plausible
     assert first.parameters["nu"] == pytest.approx(truth, abs=0.02)
     assert result.systematic_after < result.systematic_before
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scenario, magnitude", [("clean", 1.0), ("platen_slip", 1000.0)])
+def test_campaigns_made_by_an_independent_code(tmp_path, scenario, magnitude):
+    """Campaigns whose curves FElupe made (static, quadratic cells), not this project's solver.
+
+    Clean: nothing may be named, although the base model's discretisation (and its rim
+    rolling onto the platens node by node) differs from the data's. Wholly unbonded
+    (frictionless) platens: slip must be named, first or as equally possible, with a friction
+    near zero. Before slip was tabulated at four alphas (as compressibility is), its candidate
+    stayed at the base fit's alpha, which the missing slip had lowered by one, and ended near
+    bonded (friction 0.86, dBIC -11 against -403 for a travel offset).
+    """
+    pytest.importorskip("felupe")
+    from calib.loaders import load_campaign
+    from experiments.generator import generate_campaign
+
+    folder = tmp_path / scenario
+    generate_campaign(folder, scenario=scenario, magnitude=magnitude, seed=1,
+                      layers=("A", "D"), truth_code="felupe")
+    result = discover_campaign(load_campaign(folder), progress=False, log=lambda *a: None)
+    if scenario == "clean":
+        assert result.effect == "none", [c.to_dict() for c in result.rounds[0]]
+        return
+    assert "platen_slip" in [result.effect, *result.also_possible], result.effect
+    slip = {c.effect: c for c in result.rounds[0]}["platen_slip"]
+    assert slip.plausible and slip.parameters["friction"] < 0.05
+    assert result.systematic_after < result.systematic_before
