@@ -30,6 +30,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from experiments.generator import TRUTH_CODES
 from experiments.scenarios import SCENARIOS
 
 
@@ -185,7 +186,7 @@ def main(argv=None) -> int:
     p.add_argument("--fast", action="store_true", help="generate on the fitting mesh")
     p.add_argument("--magnitude", type=float, default=1.0,
                    help="of every scenario without its own (NAME@M in --scenarios)")
-    p.add_argument("--truth-code", choices=("solver", "felupe"), default="solver",
+    p.add_argument("--truth-code", choices=TRUTH_CODES, default="solver",
                    help="the code that makes the campaigns' curves")
     p.add_argument("--out", required=True, help="folder for runs.jsonl")
     p.add_argument("--summary", action="store_true", help="only print the summary of OUT")

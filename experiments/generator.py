@@ -282,7 +282,7 @@ class CampaignSpec:
                     f"scenario {self.scenario!r} at magnitude {self.magnitude:g} needs "
                     f"{'a Prony series' if law.viscoelastic else 'Coulomb platens'}, which the "
                     "FElupe truth does not run (static hyperelastic, bonded or frictionless "
-                    "platens; platen_slip is frictionless from magnitude 150)")
+                    "platens; platen_slip is frictionless above magnitude 150)")
 
     @property
     def mesh_size(self) -> tuple[int, int]:

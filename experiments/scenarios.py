@@ -22,7 +22,7 @@ Scenarios and their truth at magnitude :math:`M` (:math:`M = 1` values in bracke
 ``platen_slip``
     The platens are not bonded: Coulomb friction with coefficient :math:`0.15 / M` [0.15]
     instead of the sandpaper bond (:math:`M \to 0`: infinite friction, i.e. bonded). Below
-    friction 0.001 (:math:`M \ge 150`) the platens are frictionless: wholly unbonded faces,
+    friction 0.001 (:math:`M > 150`) the platens are frictionless: wholly unbonded faces,
     e.g. lubricated platens (also what :mod:`experiments.generator`'s FElupe truth can run).
 ``contact_offset``
     An uneven (domed) top face: the platen first touches the sample at travel 0 but meets the
@@ -85,7 +85,7 @@ NU_ASSUMED = 0.499
 G1_UNIT = 0.6
 TAU1_S = 0.5
 FRICTION_UNIT = 0.15
-#: Below this friction coefficient the slip scenario's platens are frictionless (M >= 150):
+#: Below this friction coefficient the slip scenario's platens are frictionless (M > 150):
 #: the solver's Coulomb platens at friction 1e-4 give the frictionless curve within 0.1 %.
 FRICTIONLESS_BELOW = 1e-3
 OFFSET_UNIT_MM = 0.3
