@@ -4,8 +4,32 @@ Numba's on-disk cache is not safe against several processes compiling and writin
 kernels at once (numba issues #4807 and #10128): with a cold cache and ``-n 2``, a
 ``calib simulate --mesh hex`` subprocess segfaulted once in six runs here while a worker was
 writing the hexahedral kernels. The controlling process therefore runs one small solve of
-every path first, so that the workers and their subprocesses only read the cache.
+every path first, so that the workers and their subprocesses only read the cache (the cache
+now also locks its folder, see :func:`solver._jit._locked_cache`; the warm-up still saves
+each worker compiling everything itself).
+
+The slow tests run first. The four longest (the notebook's and the README's runs of the
+whole discrepancy workflow, 6-8 minutes each in CI, and the two campaigns made by FElupe,
+3-4 minutes) come in an order that xdist's ``--maxschedchunk 2`` (two tests per worker at the
+start) hands out as notebook + FElupe clean to one worker and README + FElupe slip to the
+other; the rest follows as workers come free. In collection order both workflow runs fell
+late and the run ended on one worker.
 """
+
+#: The longest tests, in the order they are started (see the module notes).
+_FIRST = ("test_notebook_executes[03_discover]",
+          "test_campaigns_made_by_an_independent_code[clean-1.0]",
+          "test_quickstart_main_job_runs",
+          "test_campaigns_made_by_an_independent_code[platen_slip-1000.0]")
+
+
+def pytest_collection_modifyitems(config, items):
+    def rank(item):
+        if item.name in _FIRST:
+            return (0, _FIRST.index(item.name))
+        return (1 if item.get_closest_marker("slow") else 2, 0)
+
+    items.sort(key=rank)  # stable: the order within each rank is kept
 
 
 def pytest_configure(config):

@@ -247,7 +247,7 @@ def test_jit_cache_writes_wait_for_the_folder_lock(tmp_path):
         child = subprocess.Popen([sys.executable, str(script)], env=env,
                                  stderr=subprocess.PIPE, text=True)
         try:
-            deadline = time.monotonic() + 12.0  # import and compile take 2-5 s here
+            deadline = time.monotonic() + 6.0  # import and compile take 2-5 s here
             while time.monotonic() < deadline and child.poll() is None:
                 time.sleep(0.2)
             assert child.poll() is None, "the kernel's process did not wait for the lock"
