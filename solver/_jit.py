@@ -58,6 +58,7 @@ import numba  # noqa: E402
 # before this module, set its configuration too (read when each kernel is decorated)
 numba.config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]
 
+
 @contextlib.contextmanager
 def _cache_lock(exclusive: bool):
     """Hold an inter-process lock on the cache folder (POSIX ``flock``; no-op elsewhere)."""
