@@ -220,6 +220,8 @@ def test_confusion_replay_of_the_acceptance_rules():
     assert decide_all([cand("a", -120.0, gains={"rate": 0.3, "sample": 0.01})], th, n) \
         == ("none", [])  # one kind of fold not improved enough
     assert decide_all([cand("a", -120.0, direct=-50.0)], th, n) == ("none", [])
+    assert decide_all([cand("a", -950.0, direct=-258.0)], th, n) == ("none", [])  # 27 %
+    assert decide_all([cand("a", -950.0, direct=-500.0)], th, n) == ("a", [])
     assert decide_all([cand("a", -122.2), cand("b", -110.4), cand("c", -100.0)], th, n) \
         == ("a", ["b"])  # within 12.2 of the best; c is 22.2 away
     # the margin grows with the gain: 10 % of 540 is 54
@@ -232,6 +234,39 @@ def test_confusion_replay_of_the_acceptance_rules():
     c = cand("c", -100.0)
     c["systematic"] = 0.001  # smaller gap, but not within the margin of the best
     assert decide_all([a, b, c], th, n) == ("b", ["a"])
+
+
+def test_direct_check_needs_the_threshold_and_half_the_fast_gain(monkeypatch):
+    """Direct FE solves confirm a candidate if they meet the dBIC threshold and at least
+    half of the fast model's gain."""
+    from types import SimpleNamespace
+
+    from calib import discover as D
+
+    contexts = [SimpleNamespace(data=SimpleNamespace(cycles=[None] * 9))] * 2  # limit -54
+    direct = {}
+    monkeypatch.setattr(D, "_direct_chi2", lambda contexts, model: direct[id(model)])
+    current = D.Model([], [])
+    model = D.Model([make_effect("platen_slip")], [(0.44,)])
+    k_ln_n = math.log(18)
+
+    def judged(direct_dbic, fast_dbic=-950.0):
+        direct[id(current)] = 1000.0
+        direct[id(model)] = 1000.0 + direct_dbic - k_ln_n
+        judging = D._Round(0, contexts, None, None, None, lambda text: None, THRESHOLDS,
+                           None, current, [], 0.0, 0.12, None)
+        cand = D.Candidate("platen_slip", fast_dbic, 0.2, {"friction": 0.44}, True)
+        return judging.confirmed(cand, model), cand
+
+    ok, cand = judged(-258.0)  # a generated two-term law's false slip: 27 % of the gain
+    assert not ok and not cand.plausible and "do not confirm" in cand.reason
+    assert cand.direct_delta_bic == pytest.approx(-258.0)
+    ok, cand = judged(-0.51 * 950.0)
+    assert ok and cand.plausible
+    ok, cand = judged(-50.0, fast_dbic=-60.0)  # most of the gain, but above the threshold
+    assert not ok
+    ok, cand = judged(-60.0, fast_dbic=-55.0)
+    assert ok
 
 
 @pytest.mark.slow
