@@ -315,6 +315,10 @@ def _add_generate(sub) -> None:
                    help="comma-separated subset of the layers A-F, default all")
     p.add_argument("--fast", action="store_true",
                    help="simulate on the fitting default mesh (cheap null runs)")
+    p.add_argument("--truth-code", choices=("solver", "felupe"), default="solver",
+                   help="the code that makes the curves: this project's solver (default) or "
+                   "FElupe, an independent static code (pip install felupe; bonded or "
+                   "frictionless platens, no Prony terms)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace DIR if it holds an earlier generated campaign (truth.json)")
     p.add_argument("--json", action="store_true",
@@ -331,11 +335,14 @@ def _run_generate(args) -> int:
         raise WorkFailed(f"the experiments package is not importable: {exc}") from exc
     try:
         spec = CampaignSpec(scenario=args.scenario, magnitude=args.magnitude,
-                            seed=args.seed, layers=args.layers, fast=args.fast)
+                            seed=args.seed, layers=args.layers, fast=args.fast,
+                            truth_code=args.truth_code)
     except ValueError as exc:
         raise UsageError(str(exc)) from exc
     try:
         summary = generate_campaign(args.out, spec, overwrite=args.overwrite, progress=log)
+    except ImportError as exc:
+        raise WorkFailed(f"--truth-code {args.truth_code}: {exc}") from exc
     except FileExistsError as exc:
         raise UsageError(str(exc)) from exc
     except PermissionError as exc:
@@ -349,7 +356,8 @@ def _run_generate(args) -> int:
     else:
         print(f"{summary.n_cycles} cycles ({summary.scenario}, M = {summary.magnitude:g}, "
               f"seed {summary.seed}) written to {summary.out}; truth in {summary.truth}")
-    log(f"{summary.n_simulations} solver runs on a {summary.mesh[0]}x{summary.mesh[1]} mesh; "
+    code = "FElupe" if summary.truth_code == "felupe" else "solver"
+    log(f"{summary.n_simulations} {code} runs on a {summary.mesh[0]}x{summary.mesh[1]} mesh; "
         f"{summary.n_bytes / 1e6:.2f} MB in {summary.wall_s:.1f} s")
     return EXIT_OK
 

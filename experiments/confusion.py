@@ -123,6 +123,8 @@ def summarise(records: list[dict]) -> str:
     """Confusion table (true scenario x named effect) and threshold calibration of nulls."""
     from calib.discover import THRESHOLDS
 
+    failed = [r for r in records if "failed" in r]
+    records = [r for r in records if "failed" not in r]
     names = sorted({r["named"] for r in records} | {"none"})
     scen = sorted({r["scenario"] for r in records})
     lines = ["| true \\ named | " + " | ".join(names) + " |",
@@ -178,6 +180,10 @@ def summarise(records: list[dict]) -> str:
                          f"held out {held}; systematic part fitted {sys_fit}, held out "
                          f"{sys_held} (model of the unthresholded pick, "
                          f"{r['named_unthresholded']})" if c else "")
+    if failed:
+        lines += ["", "runs that failed (not in the table):"]
+        lines += [f"- {r['scenario']} seed {r['seed']} (magnitude {r['magnitude']:g}, "
+                  f"{r.get('truth_code', 'solver')}): {r['failed']}" for r in failed]
     return "\n".join(lines)
 
 
@@ -212,16 +218,25 @@ def main(argv=None) -> int:
             if scenario not in SCENARIOS:
                 p.error(f"unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
             magnitude = float(own) if own else args.magnitude
-            record = run_one(scenario, seed, layers, args.fast, magnitude,
-                             truth_code=args.truth_code)
+            try:
+                record = run_one(scenario, seed, layers, args.fast, magnitude,
+                                 truth_code=args.truth_code)
+            except Exception as exc:  # one run's failure must not lose the others
+                record = {"scenario": scenario, "seed": seed, "layers": layers,
+                          "fast": args.fast, "magnitude": magnitude,
+                          "truth_code": args.truth_code,
+                          "failed": f"{type(exc).__name__}: {exc}"}
+                print(f"{scenario} seed {seed}: failed ({record['failed']})", file=sys.stderr,
+                      flush=True)
+            else:
+                print(f"{scenario} seed {seed}: named {record['named']} "
+                      f"(unthresholded {record['named_unthresholded']}), "
+                      f"{record['discover_s']:.0f} s", file=sys.stderr, flush=True)
             with log.open("a") as fh:
                 fh.write(json.dumps(record, default=float) + "\n")
-            print(f"{scenario} seed {seed}: named {record['named']} "
-                  f"(unthresholded {record['named_unthresholded']}), "
-                  f"{record['discover_s']:.0f} s", file=sys.stderr, flush=True)
     records = [json.loads(line) for line in log.read_text().splitlines() if line.strip()]
     print(summarise(records))
-    return 0
+    return 1 if any("failed" in r for r in records) else 0
 
 
 if __name__ == "__main__":

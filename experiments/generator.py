@@ -652,6 +652,8 @@ class GenerationSummary:
     simulate_wall_s: float
     wall_s: float
     truth: str
+    #: the code that made the curves (:attr:`CampaignSpec.truth_code`) on ``mesh``
+    truth_code: str = "solver"
 
     def to_dict(self) -> dict:
         """JSON-ready summary."""
@@ -829,14 +831,17 @@ def generate_campaign(out: str | os.PathLike, spec: CampaignSpec | None = None, 
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     wall = time.perf_counter() - start
-    say(f"done: {len(cycles)} cycles, {cache.n_runs} solver runs ({cache.wall_s:.1f} s), "
+    code = "FElupe" if spec.truth_code == "felupe" else "solver"
+    say(f"done: {len(cycles)} cycles, {cache.n_runs} {code} runs ({cache.wall_s:.1f} s), "
         f"{n_bytes / 1e6:.2f} MB in {wall:.1f} s")
     return GenerationSummary(
         out=str(out), scenario=spec.scenario, effect=scenario.effect,
         magnitude=float(spec.magnitude), seed=spec.seed, layers=spec.layers,
         n_cycles=len(cycles), n_files=len(cycles) + len(manifests), n_bytes=n_bytes,
-        n_simulations=cache.n_runs, mesh=spec.mesh_size, simulate_wall_s=cache.wall_s,
-        wall_s=wall, truth=str(out / "truth.json"))
+        n_simulations=cache.n_runs,
+        mesh=spec.mesh_size if spec.truth_code == "solver" else FELUPE_MESH,
+        simulate_wall_s=cache.wall_s, wall_s=wall, truth=str(out / "truth.json"),
+        truth_code=spec.truth_code)
 
 
 def generate_embedded(out: str | os.PathLike = EMBEDDED_DIR,

@@ -236,6 +236,29 @@ def test_confusion_replay_of_the_acceptance_rules():
     assert decide_all([a, b, c], th, n) == ("b", ["a"])
 
 
+def test_confusion_records_a_failed_run_and_goes_on(tmp_path, monkeypatch, capsys):
+    """A run that fails (an independent code's Newton solve, say) is recorded with its reason
+    and listed in the summary; the other runs go on, and the exit status says so."""
+    import experiments.confusion as C
+
+    calls = []
+
+    def run_one(scenario, seed, *args, **kwargs):
+        calls.append(scenario)
+        raise RuntimeError(f"Newton did not converge for {scenario}")
+
+    monkeypatch.setattr(C, "run_one", run_one)
+    code = C.main(["--scenarios", "compressibility,contact_offset", "--out", str(tmp_path)])
+    assert code == 1 and calls == ["compressibility", "contact_offset"]
+    records = [json.loads(line) for line in (tmp_path / "runs.jsonl").read_text().splitlines()]
+    assert [r["failed"] for r in records] == [
+        "RuntimeError: Newton did not converge for compressibility",
+        "RuntimeError: Newton did not converge for contact_offset"]
+    out = capsys.readouterr()
+    assert "compressibility seed 1: failed (RuntimeError" in out.err
+    assert "runs that failed" in out.out and "contact_offset seed 1" in out.out
+
+
 def test_direct_check_needs_the_threshold_and_half_the_fast_gain(monkeypatch):
     """Direct FE solves confirm a candidate if they meet the dBIC threshold and at least
     half of the fast model's gain."""

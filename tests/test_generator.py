@@ -580,6 +580,34 @@ def test_cli_generate(tmp_path, capsys):
     assert "not empty" in capsys.readouterr().err
 
 
+def test_cli_generate_with_the_felupe_truth(tmp_path, capsys, monkeypatch):
+    """``--truth-code felupe`` makes the curves with FElupe (here a stand-in recording its
+    calls, the solves themselves are checked in test_felupe_truth_agrees_with_the_solver_truth)
+    and refuses scenarios FElupe does not run, naming them."""
+    from calib.cli import main
+    from experiments import generator
+
+    calls = []
+
+    def felupe_curve(material, meta, law):
+        calls.append((meta.sample, law.platen))
+        u = np.linspace(0.0, 1.05 * meta.height_mm * generator.STRAIN, 40)
+        return u, 3 * material.mu0_Pa * 1e-6 * np.pi * meta.diameter_mm ** 2 / 4 * u / 24.0
+
+    monkeypatch.setattr(generator, "_felupe_curve", felupe_curve)
+    out = tmp_path / "fel"
+    assert main(["generate", "--scenario", "platen_slip", "--magnitude", "1000", "--out",
+                 str(out), "--layers", "B", "--truth-code", "felupe", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["truth_code"] == "felupe" and summary["n_cycles"] == 9
+    assert sorted(calls) == [("B1", "frictionless"), ("B2", "frictionless"),
+                             ("B3", "frictionless")]
+    assert json.loads((out / "truth.json").read_text())["spec"]["truth_code"] == "felupe"
+    assert main(["generate", "--scenario", "rate_dependence", "--out", str(tmp_path / "r"),
+                 "--truth-code", "felupe"]) == 2
+    assert "rate_dependence" in capsys.readouterr().err
+
+
 # ---------------------------------------------------------------------------- loader round trip
 def _round_trip(out: Path, truth: dict, contact_tol_mm: float = 0.03):
     loaders = pytest.importorskip("calib.loaders")
