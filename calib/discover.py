@@ -192,6 +192,16 @@ class LayerContext:
         self.alpha_window = (max(lo, fit.alpha - ALPHA_WINDOW[0]),
                              min(hi, fit.alpha + ALPHA_WINDOW[1]))
         self._w: dict[bytes, np.ndarray] = {}
+        self._rate_masks: dict[float, np.ndarray] = {}
+        #: index of each point's comparison level in ``data.levels``
+        self.level_at_point = np.searchsorted(fit.data.levels, self.level)
+
+    def rate_mask(self, rate: float) -> np.ndarray:
+        """Points (bool, n_points) of the cycles run at ``rate`` (cached)."""
+        mask = self._rate_masks.get(rate)
+        if mask is None:
+            mask = self._rate_masks[rate] = np.isclose(self.rate, rate)
+        return mask
 
     def whitener(self, mask: np.ndarray) -> np.ndarray:
         """Whitening matrix of the points in ``mask`` (cached)."""
@@ -408,7 +418,7 @@ class RateDependence(Effect):
         gamma, log_tau = theta
         out = np.empty(len(ctx.y))
         for rate, spline in ctx.rate_table.items():
-            sel = np.isclose(ctx.rate, rate)
+            sel = ctx.rate_mask(rate)
             h = spline(log_tau)[ctx.rate_index[sel]]
             out[sel] = np.log1p(gamma * h)
         return out
@@ -738,9 +748,10 @@ def _compliant_strain(strain_m, unit_force, mu, c_mm_per_N, height_mm, iteration
     step = np.full(s.shape, np.inf)
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         for _ in range(iterations):
-            f = unit_force(np.maximum(s, 0.0))
-            slope = (unit_force(np.maximum(s + h, 0.0))
-                     - unit_force(np.maximum(s - h, 0.0))) / (2 * h)
+            # one call at s and s +- h (the curve's evaluation is the cost, per call)
+            f, up, down = unit_force(np.maximum(np.concatenate(
+                [s.ravel(), s.ravel() + h, s.ravel() - h]), 0.0)).reshape((3,) + s.shape)
+            slope = (up - down) / (2 * h)
             stiffness = 1.0 + k * slope
             stable &= stiffness > 0
             step = np.where(stable, (s + k * f - strain_m) / stiffness, 0.0)
@@ -859,12 +870,12 @@ def _point_mesh_delta(effect: Effect, ctx: LayerContext) -> np.ndarray:
     table = getattr(ctx, "mesh_delta", {}).get(effect.name)
     if table is None:
         return 0.0
-    index = np.searchsorted(ctx.data.levels, ctx.level)
+    index = ctx.level_at_point
     if None in table:
         return table[None][index]
     out = np.empty(len(ctx.y))
     for rate, values in table.items():
-        sel = np.isclose(ctx.rate, rate)
+        sel = ctx.rate_mask(rate)
         out[sel] = values[index[sel]]
     return out
 
