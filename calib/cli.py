@@ -330,7 +330,7 @@ def _run_generate(args) -> int:
     from solver import SolverInstability
 
     try:
-        from experiments.generator import CampaignSpec, generate_campaign
+        from experiments.generator import CODE_NAMES, CampaignSpec, generate_campaign
     except ImportError as exc:
         raise WorkFailed(f"the experiments package is not importable: {exc}") from exc
     try:
@@ -356,8 +356,7 @@ def _run_generate(args) -> int:
     else:
         print(f"{summary.n_cycles} cycles ({summary.scenario}, M = {summary.magnitude:g}, "
               f"seed {summary.seed}) written to {summary.out}; truth in {summary.truth}")
-    code = "FElupe" if summary.truth_code == "felupe" else "solver"
-    log(f"{summary.n_simulations} {code} runs on a {summary.mesh[0]}x{summary.mesh[1]} mesh; "
+    log(f"{summary.n_simulations} {CODE_NAMES[summary.truth_code]} runs on a {summary.mesh[0]}x{summary.mesh[1]} mesh; "
         f"{summary.n_bytes / 1e6:.2f} MB in {summary.wall_s:.1f} s")
     return EXIT_OK
 

@@ -122,6 +122,16 @@ THRESHOLDS = {
 #: -258 in direct solves (27 %), and the systematic gap of the model it left grew (12.10 ->
 #: 12.36 %).
 DIRECT_CONFIRMED_FRACTION = 0.5
+
+
+def direct_confirms(direct_delta_bic: float, delta_bic: float, limit: float) -> bool:
+    """Whether a candidate's direct-solve dBIC confirms its fast-model ``delta_bic``.
+
+    It must meet ``limit`` (the dBIC threshold) and at least
+    :data:`DIRECT_CONFIRMED_FRACTION` of the fast model's gain.
+    """
+    return (direct_delta_bic <= limit
+            and direct_delta_bic <= DIRECT_CONFIRMED_FRACTION * delta_bic)
 #: Candidates checked on held-out folds per round.
 TOP_CANDIDATES = 3
 #: A candidate that passes the information criterion but gains less than this fraction of the
@@ -411,15 +421,13 @@ class RateDependence(Effect):
                 h.append(f / f0 - 1.0)
             table[rate] = interpolate.CubicSpline(np.log(self.TAUS), np.array(h), axis=0)
         ctx.rate_table = table
-        level_index = np.searchsorted(ctx.data.levels, ctx.level)
-        ctx.rate_index = level_index
 
     def modification(self, theta, ctx, mu, alpha):
         gamma, log_tau = theta
         out = np.empty(len(ctx.y))
         for rate, spline in ctx.rate_table.items():
             sel = ctx.rate_mask(rate)
-            h = spline(log_tau)[ctx.rate_index[sel]]
+            h = spline(log_tau)[ctx.level_at_point[sel]]
             out[sel] = np.log1p(gamma * h)
         return out
 
@@ -494,7 +502,6 @@ class _GridForwardEffect(Effect):
         tables = {g: [interpolate.PchipInterpolator(self.values, rows + shift, axis=0)
                       for rows in median] for g, shift in shifts.items()}
         setattr(ctx, f"{self.name}_table", (np.array(alphas), tables))
-        ctx.level_index = np.searchsorted(ctx.data.levels, ctx.level)
         if self.mesh_values and ctx.unit.settings.mesh_correction:
             # at every grid alpha too: the correction moves with alpha as much as the effect's
             # residual shape (nu = 0.42 at 25 %: +0.42 % at alpha 3.1, -0.70 % at alpha 6)
@@ -521,7 +528,7 @@ class _GridForwardEffect(Effect):
         for geometry, per_alpha in tables.items():
             m = weights @ np.array([t(theta[0]) for t in per_alpha]) + shift  # (n_levels,)
             idx = slice(None) if geometry is None else ctx.unit.groups[geometry]
-            out[idx] = m[ctx.level_index[idx]]
+            out[idx] = m[ctx.level_at_point[idx]]
         return out
 
     def key_overrides(self, theta, rate):
@@ -653,7 +660,6 @@ class SecondOgdenTerm(Effect):
                                                               method="cubic"))
         ctx.second_term_tables = tables
         ctx.second_term_unstable = unstable
-        ctx.level_index = np.searchsorted(ctx.data.levels, ctx.level)
 
     def modification(self, theta, ctx, mu, alpha):
         t, frac = theta
@@ -661,7 +667,7 @@ class SecondOgdenTerm(Effect):
         table = ctx.second_term_tables[0 if a2 < 0 else 1]
         lo, hi = table.grid[0][0], table.grid[0][-1]
         m = table([[min(hi, max(lo, a2)), min(0.6, max(0.0, frac))]])[0]
-        return m[ctx.level_index]
+        return m[ctx.level_at_point]
 
     def plausible(self, theta, contexts=()):
         p = self.report(theta)
@@ -1737,8 +1743,7 @@ class _Round:
                                       - self.chi2_direct_current
                                       + len(model.effects[-1].bounds) * math.log(self.n_cycles))
         self._log(cand.effect, f"direct FE check: dBIC {cand.direct_delta_bic:.1f}")
-        if (cand.direct_delta_bic > self.limit
-                or cand.direct_delta_bic > DIRECT_CONFIRMED_FRACTION * cand.delta_bic):
+        if not direct_confirms(cand.direct_delta_bic, cand.delta_bic, self.limit):
             cand.plausible = False
             cand.reason = (f"direct FE solves do not confirm it (dBIC "
                            f"{cand.direct_delta_bic:.1f} against {cand.delta_bic:.1f} in the "

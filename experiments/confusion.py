@@ -91,16 +91,15 @@ def decide_all(candidates: list[dict], thresholds, n_cycles: int) -> tuple[str, 
     """The named effect and those named beside it as equally possible (discover's rules:
     among the passing candidates within max(10, 10 %) of the best dBIC, the one leaving the
     smallest systematic gap; beside it, the passing ones within the margin of its dBIC)."""
-    from calib.discover import DIRECT_CONFIRMED_FRACTION
+    from calib.discover import direct_confirms
 
     limit = thresholds["delta_bic_per_cycle"] * n_cycles
 
     def passes(c):
         gains = c.get("heldout_improvement")
         return not (c["delta_bic"] > limit or not c["plausible"] or gains is None
-                    or c.get("direct_delta_bic", -math.inf) > limit
-                    or c.get("direct_delta_bic", -math.inf)
-                    > DIRECT_CONFIRMED_FRACTION * c["delta_bic"]
+                    or not direct_confirms(c.get("direct_delta_bic", -math.inf),
+                                           c["delta_bic"], limit)
                     or any(v < thresholds["heldout_improvement"] for v in gains.values()))
 
     def margin(dbic):

@@ -120,6 +120,8 @@ STRAIN = 0.3
 FINE_MESH = (24, 30)
 #: The codes that can make a campaign's curves (:class:`CampaignSpec`).
 TRUTH_CODES = ("solver", "felupe")
+#: how the logs and summaries name each truth code
+CODE_NAMES = {"solver": "solver", "felupe": "FElupe"}
 #: FElupe truth: r-z quadratic cells (radial, axial) and equal load increments to 31 %.
 FELUPE_MESH = (16, 16)
 FELUPE_INCREMENTS = 62
@@ -288,6 +290,11 @@ class CampaignSpec:
     def mesh_size(self) -> tuple[int, int]:
         """(n_radial, n_axial) of the generation mesh."""
         return FAST_MESH if self.fast else FINE_MESH
+
+    @property
+    def curve_mesh(self) -> tuple[int, int]:
+        """(n_radial, n_axial) of the mesh the truth code makes the curves on."""
+        return self.mesh_size if self.truth_code == "solver" else FELUPE_MESH
 
     def to_dict(self) -> dict:
         """JSON-ready description."""
@@ -831,16 +838,14 @@ def generate_campaign(out: str | os.PathLike, spec: CampaignSpec | None = None, 
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     wall = time.perf_counter() - start
-    code = "FElupe" if spec.truth_code == "felupe" else "solver"
-    say(f"done: {len(cycles)} cycles, {cache.n_runs} {code} runs ({cache.wall_s:.1f} s), "
-        f"{n_bytes / 1e6:.2f} MB in {wall:.1f} s")
+    say(f"done: {len(cycles)} cycles, {cache.n_runs} {CODE_NAMES[spec.truth_code]} runs "
+        f"({cache.wall_s:.1f} s), {n_bytes / 1e6:.2f} MB in {wall:.1f} s")
     return GenerationSummary(
         out=str(out), scenario=spec.scenario, effect=scenario.effect,
         magnitude=float(spec.magnitude), seed=spec.seed, layers=spec.layers,
         n_cycles=len(cycles), n_files=len(cycles) + len(manifests), n_bytes=n_bytes,
-        n_simulations=cache.n_runs,
-        mesh=spec.mesh_size if spec.truth_code == "solver" else FELUPE_MESH,
-        simulate_wall_s=cache.wall_s, wall_s=wall, truth=str(out / "truth.json"),
+        n_simulations=cache.n_runs, mesh=spec.curve_mesh, simulate_wall_s=cache.wall_s,
+        wall_s=wall, truth=str(out / "truth.json"),
         truth_code=spec.truth_code)
 
 
