@@ -166,7 +166,7 @@ class FitSettings:
     alpha_step: float = 0.5
     alpha_bounds: tuple[float, float] = (1.0, 25.0)
     profile: bool = True
-    contact_fit: bool = False
+    contact_fit: bool = True
 
     def __post_init__(self):
         if self.residual not in ("absolute", "relative"):
