@@ -151,6 +151,119 @@ def test_systematic_gap_averages_out_the_samples_and_keeps_a_common_misfit():
     assert math.sqrt(sq / n) == pytest.approx(0.02 / math.sqrt(6), rel=1e-3)
 
 
+class _ClosedFormUnit:
+    """Unit forces (N/Pa) of the homogeneous incompressible Ogden closed form at fixed strains:
+    a stand-in for the alpha surrogate with the same nonlinearity in alpha."""
+
+    def __init__(self, strain, area_m2=1.13e-3):
+        self.lam = 1.0 - np.asarray(strain)
+        self.area = area_m2
+
+    def __call__(self, alpha):
+        lam = self.lam
+        return self.area * 2.0 / alpha * (lam ** (-0.5 * alpha - 1.0) - lam ** (alpha - 1.0))
+
+    def derivative(self, alpha, h=1e-6):
+        return (self(alpha + h) - self(alpha - h)) / (2 * h)
+
+
+def _mixed_layer(truths, sample_cov, level_sd, rng):
+    """A layer context for the fast refits: samples at their own (mu, alpha), 3 cycles x 15
+    levels each, independent relative scatter ``level_sd`` at each point."""
+    from types import SimpleNamespace
+
+    from calib.discover import _root
+    from calib.fit import whitener
+
+    levels = np.tile(np.linspace(0.02, 0.30, 15), 3)
+    unit = _ClosedFormUnit(np.tile(levels, len(truths)))
+    sample = np.repeat([f"S{k}" for k in range(len(truths))], len(levels))
+    y = np.concatenate([mu * unit(a)[:len(levels)] for mu, a in truths])
+    y = y * (1 + level_sd * rng.standard_normal(len(y)))
+    within = np.diag((level_sd * y) ** 2)
+    ctx = SimpleNamespace(layer="L", y=y, sample=sample, unit=unit,
+                          sample_root=_root(sample_cov), alpha_window=(1.0, 12.0),
+                          fit=SimpleNamespace(mu_Pa=2000.0, alpha=5.0))
+    ctx.within_whitener = lambda mask: whitener(within[np.ix_(mask, mask)])
+    return ctx, within
+
+
+def test_layer_refit_is_the_nonlinear_mixed_model_and_agrees_with_gls_where_linear():
+    """The refit fits every sample at its own (ln mu, alpha) = layer's + L u_s with a penalty
+    |u_s|^2. At its optimum the layer's parameters are the mean of the samples' (the
+    penalty's gradient in the layer's parameters is the sum of the u_s), and where the model
+    is linear over the samples' spread the penalised chi-square and the layer's parameters
+    are those of generalised least squares with the samples' scatter in the covariance,
+    J Sigma J^T + D (Lindstrom & Bates 1990), computed here independently with SciPy.
+
+    Tolerances: 1e-6 for the optimality identity (Gauss-Newton's stopping rule is 1e-5 in
+    alpha); for the comparison with GLS the model's curvature over a spread of 0.1 in alpha
+    and 2 % in mu, a few thousandths in alpha and a few percent of the chi-square."""
+    from scipy import optimize
+
+    from calib.discover import Model, _layer_refit
+
+    rng = np.random.default_rng(11)
+    truths = [(1900.0, 4.8), (1850.0, 5.0), (1950.0, 4.9)]
+    sample_cov = np.array([[0.02 ** 2, 0.0], [0.0, 0.1 ** 2]])
+    ctx, within = _mixed_layer(truths, sample_cov, 0.004, rng)
+    fit = _layer_refit(ctx, Model([], []), np.ones(len(ctx.y), bool))
+    phis = np.array([[math.log(m), a] for m, a in fit.samples.values()])
+    np.testing.assert_allclose(phis.mean(axis=0), [math.log(fit.mu), fit.alpha], atol=1e-6)
+    for (mu, a), (mu_s, a_s) in zip(truths, fit.samples.values()):
+        assert a_s == pytest.approx(a, abs=0.15) and mu_s == pytest.approx(mu, rel=0.03)
+    # generalised least squares with the linearised covariance at the refit's optimum
+    U, dU = ctx.unit(fit.alpha), ctx.unit.derivative(fit.alpha)
+    J = np.column_stack([fit.mu * U, fit.mu * dU])
+    same = ctx.sample[:, None] == ctx.sample[None, :]
+    cov = same * (J @ sample_cov @ J.T) + within
+    W = np.linalg.inv(np.linalg.cholesky(cov))
+
+    def gls(p):
+        return W @ (math.exp(p[0]) * ctx.unit(p[1]) - ctx.y)
+
+    best = optimize.least_squares(gls, [math.log(fit.mu), fit.alpha], xtol=1e-12)
+    assert best.x[1] == pytest.approx(fit.alpha, abs=5e-3)
+    assert math.exp(best.x[0]) == pytest.approx(fit.mu, rel=2e-3)
+    assert 2 * best.cost == pytest.approx(fit.chi2, rel=0.05)
+
+
+def test_layer_refit_follows_its_samples_where_the_linearised_covariance_does_not():
+    """The pathology of layer E of the generated six-layer rate-dependence campaign: samples
+    that differ by 20 % in mu, and a misfit at low strain that no sample's (mu, alpha) can
+    follow (there the loader read a relaxing curve's contact 50-70 um early at the slow
+    rates, which the model did not), larger than the noise model's scatter. Generalised least
+    squares with the samples' scatter linearised about their mean slides the layer's curve
+    along the sensitivities to the edge of alpha (checked here: its best alpha is below 2.5,
+    as E's refit went to 2.08); the nonlinear mixed model keeps it among its samples."""
+    from calib.discover import Model, _layer_refit
+
+    rng = np.random.default_rng(3)
+    truths = [(2700.0, 5.9), (3000.0, 6.4), (3300.0, 6.0)]
+    sample_cov = np.cov(np.array([[math.log(m), a] for m, a in truths]).T)
+    ctx, within = _mixed_layer(truths, sample_cov, 0.01, rng)
+    strain = np.tile(np.linspace(0.02, 0.30, 15), 9)
+    early = np.array([-0.09, -0.07, -0.01])[np.tile(np.repeat([0, 1, 2], 15), 3)]
+    ctx.y = ctx.y * (1 + early * np.exp(-(strain - 0.02) / 0.03))
+    fit = _layer_refit(ctx, Model([], []), np.ones(len(ctx.y), bool))
+    alphas = [a for _, a in truths]
+    assert min(alphas) - 0.3 < fit.alpha < max(alphas) + 0.3
+    assert 2700.0 * 0.95 < fit.mu < 3300.0 * 1.05
+    # the linearised covariance, sensitivities at the samples' mean, mu in closed form
+    U, dU = ctx.unit(6.1), ctx.unit.derivative(6.1)
+    J = 3000.0 * np.column_stack([U, dU])
+    same = ctx.sample[:, None] == ctx.sample[None, :]
+    W = np.linalg.inv(np.linalg.cholesky(same * (J @ sample_cov @ J.T) + within))
+
+    def chi2(alpha):
+        a = W @ ctx.unit(alpha)
+        r = a * (a @ (W @ ctx.y)) / (a @ a) - W @ ctx.y
+        return r @ r
+
+    grid = np.arange(1.5, 12.0, 0.25)
+    assert grid[np.argmin([chi2(a) for a in grid])] < 2.5
+
+
 def test_discover_cli_usage_errors(tmp_path, capsys):
     from calib.cli import main
 
