@@ -225,6 +225,7 @@ class LayerContext:
         self.alpha_window = (max(lo, fit.alpha - ALPHA_WINDOW[0]),
                              min(hi, fit.alpha + ALPHA_WINDOW[1]))
         self._w: dict[bytes, np.ndarray] = {}
+        self._biases: dict[CurveKey, float] = {}
         self._rate_masks: dict[float, np.ndarray] = {}
         #: index of each point's comparison level in ``data.levels``
         self.level_at_point = np.searchsorted(fit.data.levels, self.level)
@@ -337,22 +338,53 @@ class LayerContext:
     def curve_at_strain(self, key: CurveKey, strain) -> np.ndarray:
         """Unit force of a solve at the given strains of its own height.
 
-        Read through the loader's contact fit (:meth:`calib.fit.OgdenUnitResponse.contact_shift`)
-        as the base model is, so that an effect's table also carries how it moves the contact
-        the loader finds (a compressible gel's or a slipping sample's softer start).
+        Read from where the loader's contact fit would start it (:meth:`contact_shift`), so
+        that an effect's table also carries how it moves the contact the loader finds (a
+        relaxing gel's stiff start, a compressible gel's or a slipping sample's softer one).
         """
         return self.forward.unit_forces(
-            key, np.asarray(strain) * key.height_mm + self.unit.contact_shift(key))
+            key, np.asarray(strain) * key.height_mm + self.contact_shift(key))
 
-    def read_contact(self, force_of_strain, height_mm: float):
+    def contact_shift(self, key: CurveKey) -> float:
+        """Travel (mm) from the touch to where the loader's contact fit starts a solve's curve.
+
+        With ``contact_fit`` the whole reading (:meth:`calib.fit.OgdenUnitResponse.
+        contact_shift`); without it, as the base model is compared at the measured travel,
+        only what the solve's physics changes in the reading: its shift less that of the base
+        model's solve at the same alpha and geometry. A relaxing gel (g1 0.6, tau1 0.5 s) is
+        read 73, 51 and 13 um earlier than the elastic one at 0.17, 0.83 and 6 mm/s; a
+        compressible gel or a series spring within a micrometre of it.
+        """
+        if self.unit.settings.contact_fit:
+            return self.unit.contact_shift(key)
+        base = self.base_key(key.alpha[0], (key.diameter_mm, key.height_mm))
+        if key == base:
+            return 0.0
+        return self._bias(key) - self._bias(base)
+
+    def _bias(self, key: CurveKey) -> float:
+        """The loader's contact-fit shift of one solve (mm), cached."""
+        if key not in self._biases:
+            self._biases[key] = contact_fit_bias(self.forward.curve(key),
+                                                 float(self.data.levels[-1]) * key.height_mm)
+        return self._biases[key]
+
+    def read_contact(self, force_of_strain, height_mm: float, base_of_strain=None):
         """Where the loader's contact fit would start an observed curve (strain, fraction).
 
-        ``force_of_strain`` is the curve; 0 without ``contact_fit``.
+        ``force_of_strain`` is the curve; with ``contact_fit`` its whole reading, without it
+        its reading less that of ``base_of_strain``, the base model's curve of the same cycle
+        (0 if not given); see :meth:`contact_shift`.
         """
-        if not self.unit.settings.contact_fit:
+        def read(curve):
+            return contact_fit_bias(lambda d: curve(np.asarray(d) / height_mm),
+                                    float(self.data.levels[-1]) * height_mm) / height_mm
+
+        if self.unit.settings.contact_fit:
+            return read(force_of_strain)
+        if base_of_strain is None:
             return 0.0
-        return contact_fit_bias(lambda d: force_of_strain(np.asarray(d) / height_mm),
-                                float(self.data.levels[-1]) * height_mm) / height_mm
+        return read(force_of_strain) - read(base_of_strain)
 
 
 def _root(cov: np.ndarray) -> np.ndarray:
@@ -755,6 +787,8 @@ class SecondOgdenTerm(Effect):
     def full_key(self, theta, key: CurveKey, rate: float) -> CurveKey:
         p = self.report(theta)
         r = p["fraction2"]
+        if r == 0.0:
+            return key  # no second term
         return dataclasses.replace(key, alpha=(key.alpha[0], p["alpha2"]),
                                    fractions=(1.0 - r, r))
 
@@ -1471,7 +1505,12 @@ def _direct_prediction(ctx: LayerContext, model: Model, mu: float, alpha: float,
         # the observed curve read through the loader's contact fit, as the base model is;
         # an error of the detected contact itself after that
         curve = observed(force_fn, False)
-        start = ctx.read_contact(curve, info.height_mm)
+        base_key = ctx.base_key(alpha_c, geometry=(info.diameter_mm, info.height_mm))
+
+        def base_curve(s, key=base_key, h=info.height_mm):
+            return ctx.forward.unit_forces(key, np.asarray(s) * h)
+
+        start = ctx.read_contact(curve, info.height_mm, base_curve)
         out[idx] = observed(curve, True)(ctx.level[idx] + start)
     return out
 
@@ -1879,6 +1918,8 @@ class _Round:
                 model, chi2 = _fit_effect(contexts, self.accepted, make_effect(effect.name),
                                           start=model.theta[-1])
                 refined = True
+                if not effect.plausible(model.theta[-1], contexts)[0]:
+                    break  # no further tables at parameters that are no finding
             if refined and cand.plausible:
                 _, fits = _campaign_fit(contexts, model)
                 ok, reason = effect.plausible(model.theta[-1], contexts)
