@@ -39,9 +39,10 @@ The workflow names the missing effect, adds it to the model, refits, and shows t
    refitted, so the shared :math:`\theta` is optimised on the whole campaign. Every sample of
    a layer is fitted at its own mu and alpha, whose deviations from the layer's are random
    effects with the covariance of the samples' own fits (a nonlinear mixed model, solved as
-   penalised least squares; ``_layer_refit``). Every simulated curve is read as the loader
-   reads a rig log, from where its contact fit would put the contact (``contact_fit``); a
-   travel offset is an error of that contact and applies after the reading.
+   penalised least squares; ``_layer_refit``). What an effect changes in where the loader's
+   contact fit starts a curve is part of the effect (a relaxing gel's curve is read 50-70 um
+   earlier at the slow rates; ``LayerContext.contact_shift``); a travel offset is an error of
+   that contact itself and applies after the reading.
 3. **Naming.** Candidates are ranked by the gain in generalised chi-square, expressed as
    :math:`\Delta BIC = -\Delta\chi^2 + k \ln n` with :math:`n` the number of cycles (the honest
    count of independent curves, not of points). The best few plausible ones are checked on
