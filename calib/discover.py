@@ -1511,15 +1511,21 @@ def _direct_prediction(ctx: LayerContext, model: Model, mu: float, alpha: float,
                         return e.observe(t, s, lambda x: prev(x) / mu_c, mu_c, test, h)
             return fn
 
-        # the observed curve read through the loader's contact fit, as the base model is;
-        # an error of the detected contact itself after that
+        # where the loader's contact fit starts the curve (see LayerContext.contact_shift):
+        # with contact_fit, the whole reading of the observed curve; without it, what the
+        # forward effects change in it (the observation effects' change is left out, as in
+        # their fast model: a series spring's is 1-2 um); an error of the detected contact
+        # itself applies after the reading
         curve = observed(force_fn, False)
-        base_key = ctx.base_key(alpha_c, geometry=(info.diameter_mm, info.height_mm))
+        if ctx.unit.settings.contact_fit:
+            start = ctx.read_contact(curve, info.height_mm)
+        else:
+            base_key = ctx.base_key(alpha_c, geometry=(info.diameter_mm, info.height_mm))
 
-        def base_curve(s, key=base_key, h=info.height_mm):
-            return ctx.forward.unit_forces(key, np.asarray(s) * h)
+            def base_curve(s, key=base_key, h=info.height_mm):
+                return ctx.forward.unit_forces(key, np.asarray(s) * h)
 
-        start = ctx.read_contact(curve, info.height_mm, base_curve)
+            start = ctx.read_contact(force_fn, info.height_mm, base_curve)
         out[idx] = observed(curve, True)(ctx.level[idx] + start)
     return out
 
