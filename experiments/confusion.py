@@ -89,9 +89,10 @@ def decide(candidates: list[dict], thresholds, n_cycles: int) -> str:
 
 def decide_all(candidates: list[dict], thresholds, n_cycles: int) -> tuple[str, list[str]]:
     """The named effect and those named beside it as equally possible (discover's rules:
-    among the passing candidates within max(10, 10 %) of the best dBIC, the one leaving the
-    smallest systematic gap; beside it, the passing ones within the margin of its dBIC)."""
-    from calib.discover import direct_confirms
+    among the passing candidates within max(10, 10 %) of the best dBIC, the first by
+    ``calib.discover.rank_near_ties``; beside it, the passing ones within the margin of its
+    dBIC)."""
+    from calib.discover import _margin, direct_confirms, rank_near_ties
 
     limit = thresholds["delta_bic_per_cycle"] * n_cycles
 
@@ -102,20 +103,14 @@ def decide_all(candidates: list[dict], thresholds, n_cycles: int) -> tuple[str, 
                                            c["delta_bic"], limit)
                     or any(v < thresholds["heldout_improvement"] for v in gains.values()))
 
-    def margin(dbic):
-        return max(10.0, 0.1 * abs(dbic))
-
     passing = [c for c in sorted(candidates, key=lambda c: c["delta_bic"]) if passes(c)]
     if not passing:
         return "none", []
-    # those within the margin of the best are ranked by the systematic gap they leave
-    near = [c for c in passing if c["delta_bic"] - passing[0]["delta_bic"] < margin(
-        passing[0]["delta_bic"])]
-    near.sort(key=lambda c: c.get("systematic", 0.0))
-    passing = near + passing[len(near):]
+    passing = rank_near_ties(passing, lambda c: c["delta_bic"], lambda c: c.get("systematic", 0.0),
+                             lambda c: c["heldout_improvement"])
     best = passing[0]
     return best["effect"], [c["effect"] for c in passing[1:]
-                            if c["delta_bic"] - best["delta_bic"] < margin(best["delta_bic"])]
+                            if c["delta_bic"] - best["delta_bic"] < _margin(best["delta_bic"])]
 
 
 def summarise(records: list[dict]) -> str:

@@ -340,13 +340,25 @@ def test_confusion_replay_of_the_acceptance_rules():
     # the margin grows with the gain: 10 % of 540 is 54
     assert decide_all([cand("a", -540.0), cand("b", -500.0)], th, n) == ("a", ["b"])
     assert decide_all([cand("a", -540.0), cand("b", -480.0)], th, n) == ("a", [])
-    # within the margin, the smaller systematic gap is named first
-    a, b = cand("a", -182.0), cand("b", -180.0)
+    # within the margin, a clearly smaller systematic gap (by more than 10 %) is named first,
+    # whatever the held-out gains
+    a = cand("a", -182.0, gains={"rate": 0.5, "sample": 0.5})
+    b = cand("b", -180.0)
     a["systematic"], b["systematic"] = 0.0049, 0.0041
     assert decide_all([a, b], th, n) == ("b", ["a"])
     c = cand("c", -100.0)
     c["systematic"] = 0.001  # smaller gap, but not within the margin of the best
     assert decide_all([a, b, c], th, n) == ("b", ["a"])
+    # gaps within 10 % of the smallest: the better mean held-out gain is named first, even
+    # behind in dBIC and with the slightly larger gap
+    a["systematic"] = 0.0044
+    assert decide_all([a, b], th, n) == ("a", ["b"])
+    b["heldout_improvement"] = {"rate": 0.6, "sample": 0.45}
+    assert decide_all([a, b], th, n) == ("b", ["a"])
+    # ... and the one clearly behind in gap stays behind both
+    d = cand("d", -181.0, gains={"rate": 0.9, "sample": 0.9})
+    d["systematic"] = 0.0046
+    assert decide_all([a, b, d], th, n) == ("b", ["a", "d"])
 
 
 def test_confusion_records_a_failed_run_and_goes_on(tmp_path, monkeypatch, capsys):
