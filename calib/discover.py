@@ -1915,10 +1915,8 @@ class _Round:
                    if cm[0].effect in names and self._passes_first(cm[0])][:TOP_CANDIDATES]
         passing = [cm for cm in passing if self.heldout(*cm)]
         # candidates the information criterion cannot tell apart (within the margin of the
-        # best) are ranked by how much of the systematic gap they close: the chi-square of
-        # two near-degenerate shapes differs by what the noise model forgives, the gap by
-        # what they explain (compressibility campaign: a series spring, dBIC -182, against
-        # nu, -180; systematic gap 0.58 -> 0.49 % against 0.41 %)
+        # best): one that leaves a clearly larger systematic gap goes behind, the others are
+        # ranked by their held-out prediction (see rank_near_ties)
         passing = rank_near_ties(passing, lambda cm: cm[0].delta_bic,
                                  lambda cm: cm[0].systematic,
                                  lambda cm: cm[0].heldout_improvement)

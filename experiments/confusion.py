@@ -192,12 +192,16 @@ def main(argv=None) -> int:
                    help="of every scenario without its own (NAME@M in --scenarios)")
     p.add_argument("--truth-code", choices=TRUTH_CODES, default="solver",
                    help="the code that makes the campaigns' curves")
-    p.add_argument("--out", required=True, help="folder for runs.jsonl")
+    p.add_argument("--out", required=True,
+                   help="folder for runs.jsonl (with --summary, also a .jsonl file)")
     p.add_argument("--summary", action="store_true", help="only print the summary of OUT")
     args = p.parse_args(argv)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    log = out / "runs.jsonl"
+    if not args.summary:
+        out.mkdir(parents=True, exist_ok=True)
+    log = out if args.summary and out.suffix == ".jsonl" else out / "runs.jsonl"
+    if args.summary and not log.is_file():
+        p.error(f"{log}: no runs recorded there (run without --summary first)")
     if not args.summary:
         layers = args.layers.split(",")
         jobs = []
