@@ -148,6 +148,8 @@ TOP_CANDIDATES = 3
 #: smallest by more than this fraction ranks a candidate behind; within it, the better
 #: prediction of held-out data decides (see :func:`rank_near_ties`).
 SYSTEMATIC_CLEAR = 0.10
+#: Travel (mm) past the touch at which a level read before the touch is read instead.
+JUST_AFTER_TOUCH_MM = 1e-3
 #: A candidate that passes the information criterion but gains less than this fraction of the
 #: best one's dBIC is refined, held out and checked by direct solves only if none of the
 #: better ones is accepted. The refinement at a candidate's own fitted alpha moved its dBIC by
@@ -353,7 +355,7 @@ class LayerContext:
         # alpha 15.4 the fit puts a bonded sample's contact 0.66 mm late, a compressible
         # one's 2 um early): such a level is read just after the touch, not before it
         travel = np.asarray(strain) * key.height_mm + self.contact_shift(key)
-        return self.forward.unit_forces(key, np.maximum(travel, 1e-3))
+        return self.forward.unit_forces(key, np.maximum(travel, JUST_AFTER_TOUCH_MM))
 
     def contact_shift(self, key: CurveKey) -> float:
         """Travel (mm) from the touch to where the loader's contact fit starts a solve's curve.
@@ -843,7 +845,7 @@ class ContactOffset(_CurveReadingEffect):
         w = ctx.alpha_weights(alpha)
         for g, idx in ctx.unit.groups.items():
             d = ctx.travel[idx]
-            shifted = np.maximum(d - theta[0], 1e-3)
+            shifted = np.maximum(d - theta[0], JUST_AFTER_TOUCH_MM)
             # the discretisation correction of the point the level moves to
             out[idx] = np.log(ctx.unit_curve(g, w, shifted) * ctx.mesh_ratio(shifted / g[1])
                               / (ctx.unit_curve(g, w, d) * ctx.mesh_ratio(d / g[1])))
@@ -1582,7 +1584,7 @@ def _direct_prediction(ctx: LayerContext, model: Model, mu: float, alpha: float,
         # as in LayerContext.curve_at_strain, a level the reading starts after is read just
         # after the touch
         out[idx] = observed(curve, True)(np.maximum(ctx.level[idx] + start,
-                                                    1e-3 / info.height_mm))
+                                                    JUST_AFTER_TOUCH_MM / info.height_mm))
     return out
 
 
@@ -2308,8 +2310,9 @@ def rank_near_ties(passing: list, delta_bic, systematic, heldout_improvement) ->
     near = [c for c in passing if delta_bic(c) - top < _margin(top)]
     least = min(systematic(c) for c in near)
     clear = [c for c in near if systematic(c) <= least * (1.0 + SYSTEMATIC_CLEAR)]
+    behind = [c for c in near if systematic(c) > least * (1.0 + SYSTEMATIC_CLEAR)]
     clear.sort(key=lambda c: -float(np.mean(list(heldout_improvement(c).values()))))
-    behind = sorted((c for c in near if not any(c is k for k in clear)), key=systematic)
+    behind.sort(key=systematic)
     return clear + behind + list(passing[len(near):])
 
 

@@ -197,12 +197,11 @@ def main(argv=None) -> int:
     p.add_argument("--summary", action="store_true", help="only print the summary of OUT")
     args = p.parse_args(argv)
     out = Path(args.out)
-    if not args.summary:
-        out.mkdir(parents=True, exist_ok=True)
     log = out if args.summary and out.suffix == ".jsonl" else out / "runs.jsonl"
     if args.summary and not log.is_file():
         p.error(f"{log}: no runs recorded there (run without --summary first)")
     if not args.summary:
+        out.mkdir(parents=True, exist_ok=True)
         layers = args.layers.split(",")
         jobs = []
         if args.null:
