@@ -238,6 +238,32 @@ class LayerContext:
         self._rate_masks: dict[float, np.ndarray] = {}
         #: index of each point's comparison level in ``data.levels``
         self.level_at_point = np.searchsorted(fit.data.levels, self.level)
+        self._memo: dict[tuple, tuple] = {}
+
+    #: identifies the points an effect's modification is asked for (all of the layer's)
+    points_key = b""
+
+    def view(self, points: np.ndarray) -> PointView:
+        """The context seen on a subset of its points (indices, (n,)); see :class:`PointView`."""
+        return PointView(self, points)
+
+    def memo(self, owners: tuple, key: tuple, compute):
+        """``compute()``, cached for the table objects ``owners`` and ``key`` on these points.
+
+        An effect's parameters are held through a layer's refit while mu and alpha move, so
+        what its tables give at the parameters (before alpha's interpolation weights apply)
+        is the same at every step of it. ``owners`` are the tables the value comes from: a
+        re-tabulated effect's new tables give new values.
+        """
+        key = (*map(id, owners), self.points_key, *key)
+        hit = self._memo.get(key)
+        if hit is not None and all(a is b for a, b in zip(hit[0], owners)):
+            return hit[1]
+        if len(self._memo) >= 512:
+            self._memo.clear()
+        value = compute()
+        self._memo[key] = (owners, value)
+        return value
 
     def rate_mask(self, rate: float) -> np.ndarray:
         """Points (bool, n_points) of the cycles run at ``rate`` (cached)."""
@@ -329,8 +355,12 @@ class LayerContext:
         loader's contact fit would start each curve, as the base model's
         (:meth:`calib.fit.OgdenUnitResponse.contact_shift`).
         """
-        return weights @ np.array([c(travel + shift) for c, shift in
-                                   zip(self.unit_curves[1][g], self.unit_curves[2][g])])
+        return weights @ self.unit_curve_rows(g, travel)
+
+    def unit_curve_rows(self, g, travel) -> np.ndarray:
+        """:meth:`unit_curve` at each solved alpha, shape (n_alphas, n_travel)."""
+        return np.array([c(travel + shift) for c, shift in
+                         zip(self.unit_curves[1][g], self.unit_curves[2][g])])
 
     def alpha_weights(self, alpha: float) -> np.ndarray:
         """Weights of the solved alphas at ``alpha`` for :meth:`unit_curve`.
@@ -399,6 +429,66 @@ class LayerContext:
         return read(force_of_strain) - read(base_of_strain)
 
 
+class PointView:
+    """A :class:`LayerContext` seen on a subset of its points.
+
+    The per-point labels (``y``, ``travel``, ``test``, ``rate``, ``sample``, ``cycle``,
+    ``level``, ``height``, ``level_at_point``, :meth:`rate_mask` and the unit response's
+    ``groups``) are those of the subset, in its order; everything else (tables, fits,
+    settings) is the layer's. An effect's modification on a view equals its modification on
+    the layer at those points: a sample's refit asks for its own points only, and an effect
+    computed per geometry then touches its geometry alone.
+    """
+
+    _PER_POINT = ("y", "travel", "test", "rate", "sample", "cycle", "level", "height",
+                  "level_at_point")
+    _WHOLE_LAYER = ("cov", "within", "whitener", "within_whitener", "view")
+
+    def __init__(self, ctx: LayerContext, points: np.ndarray):
+        self._ctx = ctx
+        self.points = np.asarray(points, dtype=np.intp)
+        for name in self._PER_POINT:
+            setattr(self, name, getattr(ctx, name)[self.points])
+        self.points_key = self.points.tobytes()
+        self.unit = _UnitView(ctx.unit, self.points)
+        self._rate_masks: dict[float, np.ndarray] = {}
+
+    def rate_mask(self, rate: float) -> np.ndarray:
+        """Points (bool, n_points of the view) of the cycles run at ``rate``."""
+        mask = self._rate_masks.get(rate)
+        if mask is None:
+            mask = self._rate_masks[rate] = self._ctx.rate_mask(rate)[self.points]
+        return mask
+
+    def memo(self, owners: tuple, key: tuple, compute):
+        """:meth:`LayerContext.memo` for the view's points."""
+        return self._ctx.memo(owners, (self.points_key, *key), compute)
+
+    def __getattr__(self, name):
+        if name in self._WHOLE_LAYER:
+            raise AttributeError(f"{name} is a whole layer's; not defined on a view of its "
+                                 "points")
+        return getattr(self._ctx, name)
+
+
+class _UnitView:
+    """A unit response's ``groups`` restricted to a view's points (positions in the view)."""
+
+    def __init__(self, unit: OgdenUnitResponse, points: np.ndarray):
+        self._unit = unit
+        self.groups = {}
+        for g, idx in unit.groups.items():
+            inside = np.flatnonzero(np.isin(points, idx))
+            if len(inside):
+                self.groups[g] = inside
+
+    def __getattr__(self, name):
+        if name in ("travel", "cycle_of_point", "correction", "direct", "derivative",
+                    "__call__"):
+            raise AttributeError(f"unit.{name} is a whole layer's; not defined on a view")
+        return getattr(self._unit, name)
+
+
 def _root(cov: np.ndarray) -> np.ndarray:
     """A square root L (2, 2) of a covariance, L L^T = cov (negative eigenvalues as 0)."""
     values, vectors = np.linalg.eigh(np.asarray(cov, float))
@@ -407,10 +497,16 @@ def _root(cov: np.ndarray) -> np.ndarray:
 
 def _lagrange(nodes: np.ndarray, x: float) -> np.ndarray:
     """Weights (n_nodes,) of Lagrange interpolation at ``x``, held within half a unit beyond."""
-    x = min(nodes[-1] + 0.5, max(nodes[0] - 0.5, x))
-    return np.array([np.prod([(x - nodes[j]) / (nodes[i] - nodes[j])
-                              for j in range(len(nodes)) if j != i])
-                     for i in range(len(nodes))])
+    nodes = [float(v) for v in nodes]
+    x = min(nodes[-1] + 0.5, max(nodes[0] - 0.5, float(x)))
+    weights = []
+    for i, xi in enumerate(nodes):
+        w = 1.0
+        for j, xj in enumerate(nodes):
+            if j != i:
+                w *= (x - xj) / (xi - xj)
+        weights.append(w)
+    return np.array(weights)
 
 
 # ============================================================================ effects
@@ -616,13 +712,19 @@ class _GridForwardEffect(Effect):
         return float(nodes[0]), float(nodes[-1])
 
     def modification(self, theta, ctx, mu, alpha):
-        nodes, tables = getattr(ctx, f"{self.name}_table")
+        table = getattr(ctx, f"{self.name}_table")
+        nodes, tables = table
+        value = float(theta[0])
+        rows = ctx.memo((table,), (value,), lambda: {  # geometry -> (n_alphas, n_levels)
+            g: np.array([t(value) for t in per_alpha]) for g, per_alpha in tables.items()})
         weights = _lagrange(nodes, alpha)
-        shift = self.mesh_shift(ctx, theta[0], alpha)
+        shift = self.mesh_shift(ctx, value, alpha)
         out = np.empty(len(ctx.y))
-        for geometry, per_alpha in tables.items():
-            m = weights @ np.array([t(theta[0]) for t in per_alpha]) + shift  # (n_levels,)
-            idx = slice(None) if geometry is None else ctx.unit.groups[geometry]
+        for geometry, r in rows.items():
+            idx = slice(None) if geometry is None else ctx.unit.groups.get(geometry)
+            if idx is None:
+                continue  # a geometry none of the points has (see PointView)
+            m = weights @ r + shift  # (n_levels,)
             out[idx] = m[ctx.level_at_point[idx]]
         return out
 
@@ -638,7 +740,9 @@ class _GridForwardEffect(Effect):
         if mesh is None:
             return 0.0
         nodes, per_alpha = mesh
-        return _lagrange(nodes, alpha) @ np.array([t(value) for t in per_alpha])
+        rows = ctx.memo((mesh,), ("mesh", float(value)),
+                        lambda: np.array([t(value) for t in per_alpha]))
+        return _lagrange(nodes, alpha) @ rows
 
 
 class PlatenSlip(_GridForwardEffect):
@@ -786,8 +890,9 @@ class SecondOgdenTerm(Effect):
         branch = 0 if a2 < 0 else 1
         lo, hi = per_alpha[0][branch].grid[0][0], per_alpha[0][branch].grid[0][-1]
         point = [[min(hi, max(lo, a2)), min(0.6, max(0.0, frac))]]
-        m = _lagrange(nodes, alpha) @ np.array([tables[branch](point)[0]
-                                               for tables in per_alpha])
+        rows = ctx.memo((ctx.second_term_tables,), (float(t), float(frac)), lambda: np.array(
+            [tables[branch](point)[0] for tables in per_alpha]))  # (n_alphas, n_levels)
+        m = _lagrange(nodes, alpha) @ rows
         return m[ctx.level_at_point]
 
     def plausible(self, theta, contexts=()):
@@ -841,14 +946,22 @@ class ContactOffset(_CurveReadingEffect):
     null = (0.0,)
 
     def modification(self, theta, ctx, mu, alpha):
+        def rows():  # geometry -> the curves at the shifted and the measured travel
+            out = {}
+            for g, idx in ctx.unit.groups.items():
+                d = ctx.travel[idx]
+                shifted = np.maximum(d - theta[0], JUST_AFTER_TOUCH_MM)
+                # the discretisation correction of the point the level moves to
+                out[g] = (ctx.unit_curve_rows(g, shifted) * ctx.mesh_ratio(shifted / g[1]),
+                          ctx.unit_curve_rows(g, d) * ctx.mesh_ratio(d / g[1]))
+            return out
+
         out = np.empty(len(ctx.y))
         w = ctx.alpha_weights(alpha)
+        tables = ctx.memo((ctx.unit_curves, ctx.ratio_table), (float(theta[0]),), rows)
         for g, idx in ctx.unit.groups.items():
-            d = ctx.travel[idx]
-            shifted = np.maximum(d - theta[0], JUST_AFTER_TOUCH_MM)
-            # the discretisation correction of the point the level moves to
-            out[idx] = np.log(ctx.unit_curve(g, w, shifted) * ctx.mesh_ratio(shifted / g[1])
-                              / (ctx.unit_curve(g, w, d) * ctx.mesh_ratio(d / g[1])))
+            moved, measured = tables[g]
+            out[idx] = np.log((w @ moved) / (w @ measured))
         return out
 
     def observe(self, theta, strain, unit_force, mu, test, height_mm):
@@ -1091,6 +1204,11 @@ class _MixedProblem:
         self.static = not any(e.uses_alpha or e.uses_mu for e in model.effects)
         self.factor = (np.exp(model.modification(ctx, ctx.fit.mu_Pa, ctx.fit.alpha))
                        if self.static else None)
+        #: each sample's points of the layer, and the layer seen on them (for the effects
+        #: that change with mu or alpha)
+        points = np.flatnonzero(mask)
+        self.points = [points[rows] for rows in self.rows]
+        self.views = None if self.static else [ctx.view(p) for p in self.points]
         # the penalty's rows of the Jacobian: d u / d p
         n_s = len(self.samples)
         self.penalty_jac = np.hstack([np.zeros((2 * n_s, 2)), np.eye(2 * n_s)])
@@ -1106,33 +1224,43 @@ class _MixedProblem:
         out = mu * self.ctx.unit(alpha) * f
         return out if np.all(np.isfinite(out[self.mask])) else None
 
+    def sample_force(self, k: int, ln_mu: float, alpha: float) -> np.ndarray | None:
+        """:meth:`force` at sample ``k``'s masked points only (its rows of the problem)."""
+        points = self.points[k]
+        mu = math.exp(ln_mu)
+        if self.static:
+            f = self.factor[points]
+        else:
+            f = np.exp(self.model.modification(self.views[k], mu, alpha))
+        out = mu * self.ctx.unit(alpha)[points] * f
+        return out if np.all(np.isfinite(out)) else None
+
     def evaluate(self, p: np.ndarray, jacobian: bool = True):
         """Residual vector (and its Jacobian); None outside the model's domain."""
         r = np.empty(len(self.y))
         J = np.zeros((len(self.y), len(p))) if jacobian else None
         for k, (rows, (ln_mu, alpha)) in enumerate(zip(self.rows, self.phis(p))):
-            f = self.force(ln_mu, alpha)
+            f = self.sample_force(k, ln_mu, alpha)
             if f is None:
                 return None
-            f = f[self.mask][rows]
             r[rows] = f - self.y[rows]
             if not jacobian:
                 continue
             if self.static:
                 d_alpha = (math.exp(ln_mu) * self.ctx.unit.derivative(alpha)
-                           * self.factor)[self.mask][rows]
+                           * self.factor)[self.points[k]]
             else:
                 # forward differences, ln mu and alpha steps far above the surrogate's noise
                 h = 1e-4
-                up = self.force(ln_mu, alpha + h)
+                up = self.sample_force(k, ln_mu, alpha + h)
                 if up is None:
                     h = -h
-                    up = self.force(ln_mu, alpha + h)
-                f_mu = self.force(ln_mu + 1e-6, alpha)
+                    up = self.sample_force(k, ln_mu, alpha + h)
+                f_mu = self.sample_force(k, ln_mu + 1e-6, alpha)
                 if up is None or f_mu is None:
                     return None
-                d_alpha = (up[self.mask][rows] - f) / h
-                f = (f_mu[self.mask][rows] - f) / 1e-6
+                d_alpha = (up - f) / h
+                f = (f_mu - f) / 1e-6
             d = np.column_stack([f, d_alpha])  # d force / d (ln mu_s, alpha_s)
             J[rows, :2] = d
             J[rows, 2 + 2 * k:4 + 2 * k] = d @ self.L

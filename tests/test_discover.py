@@ -66,6 +66,20 @@ def test_observation_models_against_their_definitions():
     assert p.observe((0.1,), 0.2, unit, mu, 3, h) == pytest.approx(0.81 * mu * unit(0.2))
 
 
+def test_lagrange_weights_are_exact_for_a_cubic_and_held_beyond():
+    """The refits' Lagrange weights in alpha: exact for a cubic through four nodes, one at a
+    node, and held half a unit beyond the nodes."""
+    from calib.discover import _lagrange
+
+    nodes = np.array([3.9, 4.9, 6.9, 8.9])
+    cubic = np.poly1d([0.3, -2.0, 1.0, 5.0])
+    for x in (3.9, 4.2, 5.0, 8.9, 9.3):
+        assert _lagrange(nodes, x) @ cubic(nodes) == pytest.approx(cubic(x), rel=1e-12)
+    # held within half a unit beyond the nodes
+    np.testing.assert_allclose(_lagrange(nodes, 12.0), _lagrange(nodes, 9.4), rtol=1e-14)
+    np.testing.assert_allclose(_lagrange(nodes, 4.9), [0, 1, 0, 0], atol=1e-15)
+
+
 def test_second_term_parameters_keep_the_small_strain_modulus_and_stability():
     from calib.fit import CurveKey
 
@@ -309,6 +323,23 @@ def test_fast_effect_model_agrees_with_direct_solves_away_from_the_base_alpha():
         change = np.max(np.abs(direct / base_direct - 1.0))
         assert change > 0.03, f"{name}: the test needs an effect of a few percent"
         np.testing.assert_allclose(fast, direct, rtol=4e-3, err_msg=name)
+    # a sample's refit asks for its own points only (PointView): the same values as the
+    # layer's at those points, whichever parameters were asked for before (the tables'
+    # values at an effect's parameters are cached per parameters and points)
+    names.append("preconditioning")
+    for name, thetas in [("machine_compliance", (0.15, 0.05)), ("contact_offset", (0.2, -0.1)),
+                         ("compressibility", (0.43, 0.47)), ("preconditioning", (0.1, 0.2))]:
+        first = {}
+        for theta in thetas + thetas:
+            model = Model([make_effect(name)], [(theta,)])
+            whole = model.modification(ctx, mu, alpha)
+            np.testing.assert_array_equal(first.setdefault(theta, whole), whole)
+            for sample in dict.fromkeys(ctx.sample):
+                points = np.flatnonzero(ctx.sample == sample)
+                np.testing.assert_allclose(model.modification(ctx.view(points), mu, alpha),
+                                           whole[points], rtol=0, atol=1e-12,
+                                           err_msg=f"{name} {theta} {sample}")
+        assert np.max(np.abs(first[thetas[0]] - first[thetas[1]])) > 1e-3, name
 
 
 def test_confusion_replay_of_the_acceptance_rules():
