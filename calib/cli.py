@@ -713,6 +713,8 @@ def _run_discover(args) -> int:
         print(f"missing effect: {result.effect}"
               + (f" (equally possible: {', '.join(result.also_possible)})"
                  if result.also_possible else ""))
+        for w in result.warnings:
+            print(f"warning: {w}")
         print(f"RMS gap: {1e3 * result.rms_before_N:.2f} mN before, "
               f"{1e3 * result.rms_after_N:.2f} mN after; systematic part "
               f"{100 * result.systematic_before:.2f} -> {100 * result.systematic_after:.2f} %")

@@ -564,6 +564,18 @@ class Effect:
         """
         return True, ""
 
+    def edge(self, theta) -> str:
+        """Why the parameters end where the effect would grow beyond the box, or ``""``.
+
+        That is, at an edge of the search box beyond which the effect would be larger.
+        Such a candidate is not plausible (its estimate is the box's, not the data's), but the
+        data may ask for more of the effect than was searched: where it gains more than the
+        effect named, the name is reported as doubtful (:func:`beyond_range_warning`). Edges
+        where the effect vanishes (bonded platens, the assumed nu) or turns unphysical (a
+        negative spring) are not such edges.
+        """
+        return ""
+
     def key_overrides(self, theta, rate: float) -> dict:
         """Forward-model changes (fields of CurveKey) of the full extended model."""
         return {}
@@ -630,10 +642,15 @@ class RateDependence(Effect):
         p = self.report(theta)
         if not 0.02 <= p["g1"] <= 0.95:
             return False, f"g1 = {p['g1']:.3f} outside [0.02, 0.95]"
+        edge = self.edge(theta)
+        return not edge, edge
+
+    def edge(self, theta):
+        p = self.report(theta)
         lo, hi = self.TAUS[0] * 1.05, self.TAUS[-1] / 1.05
-        if not lo <= p["tau1_s"] <= hi:
-            return False, f"tau1 = {p['tau1_s']:.3g} s at the edge of the searched range"
-        return True, ""
+        if p["g1"] >= 0.02 and not lo <= p["tau1_s"] <= hi:
+            return f"tau1 = {p['tau1_s']:.3g} s at the edge of the searched range"
+        return ""
 
     def key_overrides(self, theta, rate):
         p = self.report(theta)
@@ -801,9 +818,14 @@ class Compressibility(_GridForwardEffect):
     def overrides(self, value):
         return {} if value == self.reference else {"nu": value}
 
-    def plausible(self, theta, contexts=()):
+    def edge(self, theta):
         if theta[0] <= 0.405:
-            return False, f"nu = {theta[0]:.3f} at the edge of the searched range"
+            return f"nu = {theta[0]:.3f} at the edge of the searched range"
+        return ""
+
+    def plausible(self, theta, contexts=()):
+        if edge := self.edge(theta):
+            return False, edge
         if theta[0] >= 0.497:
             return False, f"nu = {theta[0]:.4f}: no change from the assumed value"
         return True, ""
@@ -909,10 +931,15 @@ class SecondOgdenTerm(Effect):
                 if abs(p["alpha2"] - a2) < 1.0 and abs(theta[1] - frac) < 0.1:
                     return False, (f"near a two-term law (alpha2 {a2:g}, fraction {frac:g}) "
                                    f"whose simulation of layer {ctx.layer} went unstable")
-        if abs(theta[0]) > 0.98 or theta[1] > 0.83:
-            return False, (f"alpha2 = {p['alpha2']:.2f}, fraction2 = {p['fraction2']:.2f} at the "
-                           "edge of the searched range")
-        return True, ""
+        edge = self.edge(theta)
+        return not edge, edge
+
+    def edge(self, theta):
+        p = self.report(theta)
+        if abs(p["fraction2"]) >= 0.03 and (abs(theta[0]) > 0.98 or theta[1] > 0.83):
+            return (f"alpha2 = {p['alpha2']:.2f}, fraction2 = {p['fraction2']:.2f} at the edge "
+                    "of the searched range")
+        return ""
 
     def full_key(self, theta, key: CurveKey, rate: float) -> CurveKey:
         p = self.report(theta)
@@ -976,9 +1003,13 @@ class ContactOffset(_CurveReadingEffect):
     def plausible(self, theta, contexts=()):
         if abs(theta[0]) < 0.01:
             return False, "offset below 0.01 mm"
+        edge = self.edge(theta)
+        return not edge, edge
+
+    def edge(self, theta):
         if theta[0] <= self.bounds[0][0] + 0.02 or theta[0] >= self.bounds[0][1] - 0.02:
-            return False, f"offset {theta[0]:.3f} mm at the edge of the searched range"
-        return True, ""
+            return f"offset {theta[0]:.3f} mm at the edge of the searched range"
+        return ""
 
 
 def _compliant_strain(strain_m, unit_force, mu, c_mm_per_N, height_mm, iterations=30):
@@ -1090,9 +1121,13 @@ class MachineCompliance(_CurveReadingEffect):
     def plausible(self, theta, contexts=()):
         if theta[0] <= 0.002:
             return False, f"compliance {theta[0]:.4f} mm/N is not positive"
+        edge = self.edge(theta)
+        return not edge, edge
+
+    def edge(self, theta):
         if theta[0] >= self.bounds[0][1] - 0.01:
-            return False, "compliance at the edge of the searched range"
-        return True, ""
+            return "compliance at the edge of the searched range"
+        return ""
 
 
 class Preconditioning(Effect):
@@ -1740,6 +1775,9 @@ class Candidate:
     accepted: bool = False
     #: why a candidate that passed the first checks was not judged further
     note: str = ""
+    #: where its parameters end at an edge of the box beyond which the effect would be larger
+    #: (:meth:`Effect.edge`)
+    edge: str = ""
 
     def to_dict(self) -> dict:
         out = {"effect": self.effect, "delta_bic": self.delta_bic, "rms_N": self.rms_N,
@@ -1754,6 +1792,8 @@ class Candidate:
             out["systematic"] = self.systematic
         if self.note:
             out["note"] = self.note
+        if self.edge:
+            out["at_edge"] = self.edge
         out["accepted"] = self.accepted
         return out
 
@@ -1783,6 +1823,8 @@ class DiscoveryResult:
     thresholds: dict
     wall_s: float
     n_solves: int
+    #: doubts about the name (:func:`beyond_range_warning`), one per round that has one
+    warnings: list = dataclasses.field(default_factory=list)
 
     def parameter_table(self, nu: float = 0.499):
         """Per-layer parameters of the final model as a ``parameters.csv`` table.
@@ -1830,6 +1872,7 @@ class DiscoveryResult:
                                                        key=lambda c: c.delta_bic)],
             "accepted": self.accepted,
             "also_possible": self.also_possible,
+            "warnings": self.warnings,
             "parameters": {e.name: e.report(t) for e, t in zip(self.model.effects,
                                                               self.model.theta)},
             "rounds": [[c.to_dict() for c in r] for r in self.rounds],
@@ -2257,6 +2300,7 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
     accepted = Model([], [])
     rounds = []
     also_possible = []
+    warnings = []
     folds = _folds(contexts)
     def current_of_training(masks):
         return Model([], [])
@@ -2284,7 +2328,8 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
             rms = _rms(contexts, fits)
             ok, reason = effect.plausible(model.theta[-1], contexts)
             tried.append((Candidate(effect.name, float(delta_bic), rms,
-                                    effect.report(model.theta[-1]), ok, reason), model))
+                                    effect.report(model.theta[-1]), ok, reason,
+                                    edge=effect.edge(model.theta[-1])), model))
             log(f"discover round {round_no + 1}: {effect.name:<20} dBIC {delta_bic:10.1f} "
                 f"rms {1e3 * rms:7.2f} mN {effect.report(model.theta[-1])}"
                 + ("" if ok else f" (implausible: {reason})"))
@@ -2295,6 +2340,11 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
         grid_solves += judging.grid_solves
         also_possible += judging.also_possible
         rounds.append([c for c, _ in judging.tried])
+        warning = beyond_range_warning(rounds[-1], None if chosen is None else chosen[0],
+                                       judging.limit, round_no)
+        if warning:
+            log(f"discover round {round_no + 1}: warning: {warning}")
+            warnings.append(f"round {round_no + 1}: {warning}")
         if chosen is None:
             break
         best, best_model = chosen
@@ -2361,9 +2411,55 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
         heldout_before=heldout_base,
         heldout_after=heldout_current, per_layer=per_layer, base_fits=base.fits,
         model=accepted, predictions=predictions, failed_layers=dict(base.failed),
-        thresholds=thresholds, wall_s=time.perf_counter() - start,
+        thresholds=thresholds, wall_s=time.perf_counter() - start, warnings=warnings,
         n_solves=(forward.n_solves + grid_solves
                   + sum(f.n_solves for f in base.fits.values())))
+
+
+def beyond_range_warning(candidates, named: Candidate | None, limit: float,
+                         round_no: int = 0) -> str:
+    """A doubt about the round's outcome from a candidate stopped at an edge of its box.
+
+    A candidate whose parameters end at an edge beyond which its effect would be larger
+    (:meth:`Effect.edge`) is not plausible: its estimate is the box's. But when it still gains
+    more than the effect named (a lower dBIC), the data may hold that effect beyond the
+    searched range, and the effect named may only stand in for it: on a two-term law twice
+    the moderate magnitude (fraction2 -1, outside the box), the second term ended at the edge
+    with dBIC -4425 and a travel offset was named with -1903. When nothing is named, a
+    candidate at such an edge that passes the information criterion (``limit``) is reported
+    likewise. The name is kept (the criteria for naming are unchanged); the warning says
+    which effect may lie beyond its range.
+
+    Parameters
+    ----------
+    candidates : list of Candidate
+        The round's candidates.
+    named : Candidate or None
+        The candidate accepted in the round.
+    limit : float
+        The round's dBIC threshold (negative).
+    round_no : int
+        The round (0 for the first): after it, an effect was named already.
+
+    Returns
+    -------
+    str
+        The warning, or ``""``.
+    """
+    edge = [c for c in candidates if c.edge and not c.plausible and c.delta_bic <= limit
+            and (named is None or c.delta_bic < named.delta_bic)]
+    if not edge:
+        return ""
+    c = min(edge, key=lambda c: c.delta_bic)
+    params = ", ".join(f"{k} {v:.3g}" for k, v in c.parameters.items())
+    where = f"{c.effect} ends at the edge of its searched range ({params})"
+    if named is None:
+        nothing = "nothing more named" if round_no else "nothing named"
+        return (f"{nothing}, but {where} and gains dBIC {c.delta_bic:.0f} (threshold "
+                f"{limit:.0f}): the data may hold {c.effect} beyond that range")
+    return (f"{where} and gains more than {named.effect} (dBIC {c.delta_bic:.0f} against "
+            f"{named.delta_bic:.0f}): the data may hold {c.effect} beyond that range, with "
+            f"{named.effect} standing in for it")
 
 
 def _layer_uncertainty(ctx: LayerContext, model: Model, fit: LayerRefit):
@@ -2498,6 +2594,7 @@ def discovery_markdown(result: DiscoveryResult) -> str:
              f"Missing effect: **{result.effect}**"
              + (f" (equally possible: {', '.join(result.also_possible)})"
                 if result.also_possible else ""), ""]
+    lines += [f"> Warning: {w}" for w in result.warnings] + ([""] if result.warnings else [])
     if result.model.effects:
         for e, t in zip(result.model.effects, result.model.theta):
             params = ", ".join(f"{k} = {v:.4g}" for k, v in e.report(t).items())

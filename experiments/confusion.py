@@ -74,12 +74,28 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
         "n_cycles": len(campaign.cycles),
         "named": decide(candidates, THRESHOLDS, len(campaign.cycles)),
         "also_possible": decide_all(candidates, THRESHOLDS, len(campaign.cycles))[1],
+        "warning": warning(candidates, decide(candidates, THRESHOLDS, len(campaign.cycles)),
+                           THRESHOLDS, len(campaign.cycles)),
         "generate_s": t_gen, "discover_s": result.wall_s, "forward_solves": result.n_solves,
     }
     if keep is not None:
         shutil.copytree(folder, keep / f"{scenario}_{seed}", dirs_exist_ok=True)
     shutil.rmtree(tmp, ignore_errors=True)
     return record
+
+
+def warning(candidates: list[dict], named: str, thresholds, n_cycles: int) -> str:
+    """discover's doubt about ``named`` from round-1 candidate records (a candidate ended at
+    an edge of its box that gains more: ``calib.discover.beyond_range_warning``)."""
+    from types import SimpleNamespace
+
+    from calib.discover import beyond_range_warning
+
+    records = [SimpleNamespace(effect=c["effect"], delta_bic=c["delta_bic"],
+                               plausible=c["plausible"], parameters=c["parameters"],
+                               edge=c.get("at_edge", "")) for c in candidates]
+    chosen = next((c for c in records if c.effect == named), None)
+    return beyond_range_warning(records, chosen, thresholds["delta_bic_per_cycle"] * n_cycles)
 
 
 def decide(candidates: list[dict], thresholds, n_cycles: int) -> str:
@@ -174,6 +190,12 @@ def summarise(records: list[dict]) -> str:
                          f"held out {held}; systematic part fitted {sys_fit}, held out "
                          f"{sys_held} (model of the unthresholded pick, "
                          f"{r['named_unthresholded']})" if c else "")
+    warned = [r for r in records if r.get("warning")]
+    if warned:
+        lines += ["", "runs whose name discover doubts (a candidate at the edge of its box "
+                  "gains more):"]
+        lines += [f"- {r['scenario']} seed {r['seed']} (magnitude {r['magnitude']:g}): "
+                  f"{r['warning']}" for r in warned]
     if failed:
         lines += ["", "runs that failed (not in the table):"]
         lines += [f"- {r['scenario']} seed {r['seed']} (magnitude {r['magnitude']:g}, "
