@@ -577,8 +577,13 @@ def test_campaigns_made_by_an_independent_code(scenario):
     folder = FELUPE_MADE / scenario
     truth = json.loads((folder / "truth.json").read_text())
     assert truth["spec"]["truth_code"] == "felupe"
-    result = discover_campaign(load_campaign(folder), progress=False, log=lambda *a: None,
-                               workers=1)
+    # clean: every effect. Slip: all but the second Ogden term, whose tables are half of the
+    # workflow's solves and the slowest (stiff laws); on these data it gains nothing (dBIC
+    # +0.9 with every effect, where the offset leads with -404 and slip follows with -313)
+    effects = EFFECTS if scenario == "clean" else [e for e in EFFECTS
+                                                   if e != "second_ogden_term"]
+    result = discover_campaign(load_campaign(folder), effects=effects, progress=False,
+                               log=lambda *a: None)
     if scenario == "clean":
         assert result.effect == "none", [c.to_dict() for c in result.rounds[0]]
         assert result.rms_after_N == result.rms_before_N
