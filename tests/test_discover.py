@@ -1,5 +1,6 @@
 """The discrepancy workflow: effect models, naming rules, and recovery of hidden effects."""
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -577,12 +578,20 @@ def test_campaigns_made_by_an_independent_code(scenario):
     folder = FELUPE_MADE / scenario
     truth = json.loads((folder / "truth.json").read_text())
     assert truth["spec"]["truth_code"] == "felupe"
-    # clean: every effect. Slip: all but the second Ogden term, whose tables are half of the
-    # workflow's solves and the slowest (stiff laws); on these data it gains nothing (dBIC
-    # +0.9 with every effect, where the offset leads with -404 and slip follows with -313)
-    effects = EFFECTS if scenario == "clean" else [e for e in EFFECTS
-                                                   if e != "second_ogden_term"]
-    result = discover_campaign(load_campaign(folder), effects=effects, progress=False,
+    campaign = load_campaign(folder)
+    # clean: every effect, on layer A (the harder null of the two: its best plausible
+    # candidate, a spring, gains dBIC -15.9 against the criterion's -27 for 9 cycles; on D
+    # nothing gains, on both together nothing is named either), for time. Slip: both layers,
+    # all effects but the second Ogden term, whose tables are half of the workflow's solves
+    # and the slowest (stiff laws); on these data it gains nothing (dBIC +0.9 with every
+    # effect, where the offset leads with -404 and slip follows with -313)
+    if scenario == "clean":
+        effects = EFFECTS
+        campaign = dataclasses.replace(campaign, cycles=tuple(
+            c for c in campaign.cycles if c.layer == "A"))
+    else:
+        effects = [e for e in EFFECTS if e != "second_ogden_term"]
+    result = discover_campaign(campaign, effects=effects, progress=False,
                                log=lambda *a: None)
     if scenario == "clean":
         assert result.effect == "none", [c.to_dict() for c in result.rounds[0]]
