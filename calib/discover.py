@@ -610,6 +610,8 @@ class RateDependence(Effect):
     bounds = ((0.0, 9.0), (math.log(0.03), math.log(100.0)))  # gamma, ln tau
     null = (0.0, 0.0)
     TAUS = np.exp(np.linspace(math.log(0.03), math.log(100.0), 9))
+    #: plausible g1; below the lower end there is no viscous term to speak of
+    G1_RANGE = (0.02, 0.95)
 
     def prepare(self, ctx):
         table = {}
@@ -640,15 +642,16 @@ class RateDependence(Effect):
 
     def plausible(self, theta, contexts=()):
         p = self.report(theta)
-        if not 0.02 <= p["g1"] <= 0.95:
-            return False, f"g1 = {p['g1']:.3f} outside [0.02, 0.95]"
+        lo, hi = self.G1_RANGE
+        if not lo <= p["g1"] <= hi:
+            return False, f"g1 = {p['g1']:.3f} outside [{lo}, {hi}]"
         edge = self.edge(theta)
         return not edge, edge
 
     def edge(self, theta):
         p = self.report(theta)
         lo, hi = self.TAUS[0] * 1.05, self.TAUS[-1] / 1.05
-        if p["g1"] >= 0.02 and not lo <= p["tau1_s"] <= hi:
+        if p["g1"] >= self.G1_RANGE[0] and not lo <= p["tau1_s"] <= hi:
             return f"tau1 = {p['tau1_s']:.3g} s at the edge of the searched range"
         return ""
 
@@ -865,6 +868,8 @@ class SecondOgdenTerm(Effect):
     null = (0.5, 0.0)
     BRANCHES = (np.array([-6.0, -4.0, -2.5, -1.5]), np.array([1.5, 3.0, 6.0, 10.0, 14.0]))
     FRACTIONS = np.array([0.0, 0.15, 0.35, 0.6, 0.85])
+    #: |fraction2| below which there is no second term to speak of
+    FRACTION_MIN = 0.03
 
     @staticmethod
     def alpha2(t: float) -> float:
@@ -924,7 +929,7 @@ class SecondOgdenTerm(Effect):
 
     def plausible(self, theta, contexts=()):
         p = self.report(theta)
-        if abs(p["fraction2"]) < 0.03:
+        if abs(p["fraction2"]) < self.FRACTION_MIN:
             return False, f"fraction2 = {p['fraction2']:.3f}: no second term"
         for ctx in contexts:
             for a2, frac in getattr(ctx, "second_term_unstable", ()):
@@ -936,7 +941,8 @@ class SecondOgdenTerm(Effect):
 
     def edge(self, theta):
         p = self.report(theta)
-        if abs(p["fraction2"]) >= 0.03 and (abs(theta[0]) > 0.98 or theta[1] > 0.83):
+        if abs(p["fraction2"]) >= self.FRACTION_MIN and (abs(theta[0]) > 0.98
+                                                          or theta[1] > 0.83):
             return (f"alpha2 = {p['alpha2']:.2f}, fraction2 = {p['fraction2']:.2f} at the edge "
                     "of the searched range")
         return ""

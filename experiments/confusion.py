@@ -56,6 +56,7 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
                                max_rounds=1)
     candidates = [c.to_dict() | {"heldout_improvement": c.heldout_improvement}
                   for c in result.rounds[0]]
+    named, also_possible = decide_all(candidates, THRESHOLDS, len(campaign.cycles))
     record = {
         "scenario": scenario, "seed": seed, "layers": layers, "fast": fast,
         "magnitude": magnitude, "truth_code": truth_code,
@@ -72,10 +73,9 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
                                      for k, v in result.heldout_after.items()},
         "named_unthresholded": result.effect,
         "n_cycles": len(campaign.cycles),
-        "named": decide(candidates, THRESHOLDS, len(campaign.cycles)),
-        "also_possible": decide_all(candidates, THRESHOLDS, len(campaign.cycles))[1],
-        "warning": warning(candidates, decide(candidates, THRESHOLDS, len(campaign.cycles)),
-                           THRESHOLDS, len(campaign.cycles)),
+        "named": named,
+        "also_possible": also_possible,
+        "warning": warning(candidates, named, THRESHOLDS, len(campaign.cycles)),
         "generate_s": t_gen, "discover_s": result.wall_s, "forward_solves": result.n_solves,
     }
     if keep is not None:
