@@ -8,19 +8,22 @@ every path first, so that the workers and their subprocesses only read the cache
 now also locks its folder, see :func:`solver._jit._locked_cache`; the warm-up still saves
 each worker compiling everything itself).
 
-The slow tests run first. The four longest (the notebook's and the README's runs of the
-whole discrepancy workflow, 6-8 minutes each in CI, and the two campaigns made by FElupe,
-3-4 minutes) come in an order that xdist's ``--maxschedchunk 2`` (two tests per worker at the
-start) hands out as notebook + FElupe clean to one worker and README + FElupe slip to the
+The slow tests run first. The four longest (the README's and the notebook's runs of the
+whole discrepancy workflow, 7-12 and 4-5 minutes in CI, and the two campaigns made by FElupe,
+2-4 minutes) come in an order that xdist's ``--maxschedchunk 2`` (two tests per worker at the
+start) hands out as README + FElupe clean to one worker and notebook + FElupe slip to the
 other; the rest follows as workers come free. In collection order both workflow runs fell
-late and the run ended on one worker.
+late and the run ended on one worker. When the FElupe tests lost their magnitude parameter
+(ids ``[clean-1.0]`` to ``[clean]``) this list kept the old ids, and the README and notebook
+runs went to the same worker, one after the other: :func:`tests.test_readme` checks the ids
+against the collection since.
 """
 
 #: The longest tests, in the order they are started (see the module notes).
-_FIRST = ("test_notebook_executes[03_discover]",
-          "test_campaigns_made_by_an_independent_code[clean-1.0]",
-          "test_quickstart_main_job_runs",
-          "test_campaigns_made_by_an_independent_code[platen_slip-1000.0]")
+_FIRST = ("test_quickstart_main_job_runs",
+          "test_campaigns_made_by_an_independent_code[clean]",
+          "test_notebook_executes[03_discover]",
+          "test_campaigns_made_by_an_independent_code[platen_slip]")
 
 
 def pytest_collection_modifyitems(config, items):

@@ -27,6 +27,22 @@ def test_quickstart_has_the_two_commands_and_ci_runs_the_second():
     assert "blocks[1]" in ci and "README.md" in ci  # .ci/run extracts and runs block 2
 
 
+def test_the_tests_started_first_for_ci_exist():
+    """The longest tests, started first so that CI spreads them over both workers
+    (``tests/conftest.py``), are named by ids the collection has, and come first in it."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("_ci_conftest", ROOT / "tests" / "conftest.py")
+    conftest = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(conftest)
+    done = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q",
+                           str(ROOT / "tests")], cwd=ROOT, capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    ids = [line.split("::")[-1] for line in done.stdout.splitlines() if "::" in line]
+    assert ids[:len(conftest._FIRST)] == list(conftest._FIRST), ids[:6]
+
+
 @pytest.mark.slow
 def test_quickstart_main_job_runs(tmp_path):
     """The README's main job (after its set-up) in this environment: ``calib demo``."""
