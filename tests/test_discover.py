@@ -335,7 +335,26 @@ def test_discover_cli_usage_errors(tmp_path, capsys):
     assert "no readable cycle" in capsys.readouterr().err
 
 
-def test_fast_effect_model_agrees_with_direct_solves_away_from_the_base_alpha():
+@pytest.fixture(scope="module")
+def layer_a_context():
+    """Layer A of three samples (one off the median geometry) with the tables of a series
+    spring, a travel offset and a compressible gel, on the fitting mesh."""
+    from calib.discover import LayerContext, _prepare
+    from calib.fit import FitSettings, ForwardModel, fit_campaign
+
+    from .test_fit import _layer
+
+    settings = FitSettings()
+    cycles = _layer("A", 1875.0, 4.9, [(38.0, 24.0), (37.6, 24.3), (38.0, 24.0)])
+    base = fit_campaign(Campaign(root="mem", cycles=tuple(cycles)), settings, max_workers=1,
+                        progress=False)
+    ctx = LayerContext(base.fits["A"], ForwardModel(mesh_scale=settings.mesh_scale), settings)
+    _prepare([ctx], settings, ["machine_compliance", "contact_offset", "compressibility"],
+             None, 1, None, False)
+    return ctx
+
+
+def test_fast_effect_model_agrees_with_direct_solves_away_from_the_base_alpha(layer_a_context):
     """The refits move alpha (by up to 2 when the missing effect biased the base fit); the fast
     model of an effect must follow: at alpha 1.5 above the base fit's, the tabulated relative
     change of a series spring, a travel offset and a compressible gel matches direct FE
@@ -347,18 +366,10 @@ def test_fast_effect_model_agrees_with_direct_solves_away_from_the_base_alpha():
     sample geometry (on the median geometry only, a sample whose diameter over height is
     1.2 % larger than the median's was off by up to 0.7 %: the bonded sample's loss of
     stiffness with nu depends on its shape factor)."""
-    from calib.discover import LayerContext, Model, _direct_prediction, _prepare
-    from calib.fit import FitSettings, ForwardModel, fit_campaign
+    from calib.discover import Model, _direct_prediction
 
-    from .test_fit import _layer
-
-    settings = FitSettings()
-    cycles = _layer("A", 1875.0, 4.9, [(38.0, 24.0), (37.6, 24.3), (38.0, 24.0)])
-    base = fit_campaign(Campaign(root="mem", cycles=tuple(cycles)), settings, max_workers=1,
-                        progress=False)
-    ctx = LayerContext(base.fits["A"], ForwardModel(mesh_scale=settings.mesh_scale), settings)
+    ctx = layer_a_context
     names = ["machine_compliance", "contact_offset", "compressibility"]
-    _prepare([ctx], settings, names, None, 1, None, False)
     alpha = ctx.fit.alpha + 1.5
     mu = ctx.fit.mu_Pa
     base_direct = ctx.unit.direct(alpha) * mu
@@ -387,6 +398,28 @@ def test_fast_effect_model_agrees_with_direct_solves_away_from_the_base_alpha():
                                            whole[points], rtol=0, atol=1e-12,
                                            err_msg=f"{name} {theta} {sample}")
         assert np.max(np.abs(first[thetas[0]] - first[thetas[1]])) > 1e-3, name
+
+
+def test_candidates_fitted_in_worker_processes_equal_those_fitted_here(layer_a_context):
+    """A round's candidate fits run in worker processes, each on its own copy of the
+    contexts (tables, noise model): the same models, chi-squares and RMS gaps as fitted one
+    by one in this process, to the last bit, and in the order asked for."""
+    from calib.discover import Model, _fit_candidates, _structure_free_noise
+
+    ctx = layer_a_context
+    pred = ctx.fit.predicted[ctx.data.valid]
+    J = np.column_stack([pred, ctx.fit.mu_Pa * ctx.unit.derivative(ctx.fit.alpha)])
+    _structure_free_noise(ctx, pred, J, ctx.fit.noise.sample_cov)
+    effects = [make_effect(n) for n in ("contact_offset", "preconditioning",
+                                        "machine_compliance")]
+    here = list(_fit_candidates([ctx], Model([], []), effects, 1, None))
+    there = list(_fit_candidates([ctx], Model([], []), effects, 2, None))
+    assert len(here) == len(there) == 3
+    for effect, (m1, chi1, rms1), (m2, chi2, rms2) in zip(effects, here, there):
+        assert [e.name for e in m1.effects] == [e.name for e in m2.effects] == [effect.name]
+        np.testing.assert_array_equal(np.asarray(m1.theta[-1]), np.asarray(m2.theta[-1]))
+        assert (chi1, rms1) == (chi2, rms2), effect.name
+        assert math.isfinite(chi1)
 
 
 def test_confusion_replay_of_the_acceptance_rules():
