@@ -685,7 +685,8 @@ def _add_discover(sub) -> None:
     p.add_argument("--effects", metavar="E1,E2", help="candidate effects (default all)")
     p.add_argument("--nu", type=float, default=0.499, help="Poisson's ratio assumed, default 0.499")
     p.add_argument("--workers", type=int, default=None,
-                   help="local processes for the base fits (default: one per core)")
+                   help="local processes for the base fits, the effect grids and the candidate "
+                        "fits (default: one per core)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="a Dask scheduler to run on")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.set_defaults(handler=_run_discover, residual="absolute")

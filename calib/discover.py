@@ -2308,7 +2308,9 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
     effects : sequence of str
         Candidate effects, default all of :data:`EFFECTS`.
     workers, scheduler
-        Executor of the base fits (:func:`calib.fit.fit_campaign`).
+        Executor (:func:`calib.parallel.executor`) of the base fits
+        (:func:`calib.fit.fit_campaign`), the effect grids (one item per layer) and each
+        round's candidate fits (one item per effect); ``workers=1`` runs all in this process.
     thresholds : dict, optional
         Override :data:`THRESHOLDS`.
     max_rounds : int
@@ -2361,8 +2363,9 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
                         else ctx.fit.predicted[ctx.data.valid])
             for ctx in contexts if ctx.layer in fits_current)
         log(f"discover round {round_no + 1}: current model's RMS gap {1e3 * rms_current:.2f} mN")
+        # strict: the fits' generator runs to its end, which closes its worker pool here
         for effect, (model, chi2, rms) in zip(remaining, _fit_candidates(
-                contexts, accepted, remaining, workers, scheduler)):
+                contexts, accepted, remaining, workers, scheduler), strict=True):
             k = len(effect.bounds)
             delta_bic = (chi2 - chi2_current) + k * math.log(n_cycles)
             ok, reason = effect.plausible(model.theta[-1], contexts)
