@@ -4,8 +4,8 @@ The verification ladder compares :func:`solver.simulate` (explicit dynamics, mea
 quads) with an independent implicit code. This module solves the same *static* problem with
 `FElupe <https://github.com/adtzlr/felupe>`_ by Newton's method: a cylinder of diameter
 ``D`` and height ``H`` squeezed between rigid platens, either bonded (bottom face fixed, top
-face :math:`u_r = 0` with :math:`u_z` prescribed) or frictionless (only :math:`u_z` held on
-the faces).
+face :math:`u_r = 0` with :math:`u_z` prescribed), frictionless (only :math:`u_z` held on
+the faces) or with Coulomb friction (contact with friction, see below).
 
 Material (the project's single convention, FElupe's ``ogden``)::
 
@@ -50,6 +50,25 @@ the 32 x 32 reference mesh, holding the folded surface on the platens raises the
 (a sticking variant gave the same force to 6 digits: the rolled-on surface barely slides).
 The penalty leaves < 1e-4 mm penetration. ``rollover`` in :func:`compression_curve`'s output
 reports how far side nodes end beyond the platens.
+
+Coulomb platens
+---------------
+``platen="coulomb"`` holds the faces by contact alone: FElupe's penalty
+:class:`~felupe.ContactRigidPlane` with a Coulomb return mapping on every boundary node (face
+and side) against both platens, which move by half the travel each while the axis node at
+mid-height stays put (exact by symmetry; it removes the axial rigid-body mode). A sticking
+node slides elastically by up to 0.5 % of the smallest face cell before it slips. A failed
+increment is bisected with the contacts' friction history restored. Measured at friction
+0.15 (mu = 1875 Pa, alpha = 4.9, nu = 0.499, bilinear cells graded 2n:1): from 8 x 8 to
+24 x 24 cells the force moves by < 0.05 % up to 20 % strain and by 0.2 % at 25-30 %; 60 and
+120 increments agree to 1e-6. Limits: the Newton solve of the quadratic cells failed (a
+non-finite system on 8 x 8 cells), and at friction 0.3 only the 16 x 16 mesh went through:
+on 12, 20, 24 and 32 cells Newton's iterations stopped converging at one travel between 8
+and 15 % strain, however small the step (ten bisections). Nor does it go through on every
+sample at 0.15: on 16 x 16 cells it stopped at 23 % strain on a generated sample (alpha
+4.94, 38.5 x 24.2 mm; also with a ten times softer penalty, on another sample), so the
+generator's FElupe truth keeps to bonded and frictionless platens. ``friction=0`` gives the
+frictionless closed form.
 
 Public functions
 ----------------
@@ -359,6 +378,7 @@ def compression_curve(
     height_mm: float = 24.0,
     strain: float = 0.3,
     platen: str = "bonded",
+    friction: float | None = None,
     axisymmetric: bool = True,
     n_radial: int = 16,
     n_axial: int = 16,
@@ -385,9 +405,14 @@ def compression_curve(
         Sample size (mm).
     strain : float
         Final nominal compression, travel / height, in (0, 0.7).
-    platen : {"bonded", "frictionless"}
-        Bonded faces (bottom fixed; top u_r = 0, u_z prescribed) or frictionless faces (only
-        u_z held; plus the axis, or rigid-body constraints in 3D).
+    platen : {"bonded", "frictionless", "coulomb"}
+        Bonded faces (bottom fixed; top u_r = 0, u_z prescribed), frictionless faces (only
+        u_z held; plus the axis, or rigid-body constraints in 3D), or Coulomb friction
+        (axisymmetric only): every boundary node meets the rigid platens through FElupe's
+        penalty :class:`~felupe.ContactRigidPlane` with ``friction``, a Coulomb law with an
+        elastic stick and a return mapping (see "Coulomb platens" in the module notes).
+    friction : float, optional
+        Coulomb coefficient, >= 0; required with ``platen="coulomb"`` and only there.
     axisymmetric : bool
         r-z axisymmetric model (True) or a 3D hexahedral cylinder (False).
     n_radial, n_axial : int
@@ -411,9 +436,10 @@ def compression_curve(
         Rigid-plane penalty contact of the side-surface nodes with both platens. Default:
         on for bonded platens, off for frictionless ones (where the side never meets them).
     contact_penalty : float
-        FElupe's contact multiplier, relative to the mean stiffness of the side nodes.
+        FElupe's contact multiplier, relative to the mean stiffness of the contact nodes.
         The default 1000 leaves about 3e-4 mm penetration at 30 % on a 16 x 16 mesh, and
-        changes the force by < 2e-4 relative to 100.
+        changes the force by < 2e-4 relative to 100 with bonded platens; with Coulomb ones,
+        whose faces it holds, by 0.08-0.17 % (12 x 12 cells, friction 0.15).
     check_strains : sequence of float
         Nominal strains at which the solution is computed exactly (added to the increments).
 
@@ -443,13 +469,25 @@ def compression_curve(
             raise ValueError(f"{name}={value} must be a positive number")
     if not 0.0 < strain < 0.7:
         raise ValueError(f"strain={strain} must lie in (0, 0.7)")
-    if platen not in ("bonded", "frictionless"):
-        raise ValueError(f"platen={platen!r} is not 'bonded' or 'frictionless' "
-                         f"(FElupe's reference has no Coulomb platen)")
+    if platen not in ("bonded", "frictionless", "coulomb"):
+        raise ValueError(f"platen={platen!r} is not 'bonded', 'frictionless' or 'coulomb'")
+    coulomb = platen == "coulomb"
+    if coulomb:
+        if friction is None or not (math.isfinite(friction) and friction >= 0.0):
+            raise ValueError(f"friction={friction!r} must be a finite number >= 0 with "
+                             "platen='coulomb'")
+        if not axisymmetric:
+            raise ValueError("platen='coulomb' is axisymmetric only (axisymmetric=True)")
+        if int(n_axial) % 2:
+            raise ValueError(f"n_axial={n_axial} must be even with platen='coulomb' (a node "
+                             "row at mid-height holds the sample's axial position)")
+    elif friction is not None:
+        raise ValueError(f"friction={friction!r} is for platen='coulomb' only "
+                         f"(platen={platen!r})")
     if int(n_increments) != n_increments or n_increments < 1:
         raise ValueError(f"n_increments={n_increments} must be a positive integer")
     if rollover_contact is None:
-        rollover_contact = platen == "bonded"
+        rollover_contact = platen != "frictionless"
     if order is None:
         order = "quadratic" if axisymmetric else "linear"
     if grading is None:
@@ -494,7 +532,7 @@ def compression_curve(
     cell_z = mesh.points[mesh.cells, axial].mean(axis=1)
     cell_material = np.searchsorted(interfaces, cell_z)                  # layer index per cell
 
-    if rollover_contact:
+    if rollover_contact or coulomb:
         # two extra, cell-free points: the reference points of the bottom and top platens
         centre = np.zeros((2, dim))
         centre[1, axial] = H
@@ -524,6 +562,14 @@ def compression_curve(
     if platen == "bonded":
         bcs["bottom"] = fem.Boundary(field[0], mask=bottom)
         bcs["top_lateral"] = fem.Boundary(field[0], mask=top, skip=all_but_axial)
+    elif coulomb:
+        # the faces are held by contact alone: both platens move by half the travel and the
+        # axis node at mid-height stays where it is (exact by symmetry), which removes the
+        # axial rigid-body mode
+        middle = body & (np.abs(r_all) < tol) & (np.abs(z_all - 0.5 * H) < tol)
+        if middle.sum() != 1:
+            raise ValueError("the mesh has no node on the axis at mid-height")
+        bcs["middle"] = fem.Boundary(field[0], mask=middle, skip=only_axial)
     else:
         bcs["bottom"] = fem.Boundary(field[0], mask=bottom, skip=only_axial)
         if not axisymmetric:
@@ -535,20 +581,40 @@ def compression_curve(
                                         skip=(0, 1, 1))
             bcs["sym_y"] = fem.Boundary(field[0], mask=body & (np.abs(y_all) < tol),
                                         skip=(1, 0, 1))
-    bcs["move"] = fem.Boundary(field[0], mask=top, skip=only_axial)
+    if not coulomb:
+        bcs["move"] = fem.Boundary(field[0], mask=top, skip=only_axial)
     items = [solid]
     side = np.where(body & (np.abs(r_all - R) < tol) & ~top & ~bottom)[0]
-    if rollover_contact:
-        bcs["bottom_platen"] = fem.Boundary(field[0], mask=index == n_body)
+    if rollover_contact or coulomb:
+        if coulomb:
+            bcs["bottom_platen_lateral"] = fem.Boundary(field[0], mask=index == n_body,
+                                                        skip=all_but_axial)
+            bcs["bottom_platen"] = fem.Boundary(field[0], mask=index == n_body,
+                                                skip=only_axial)
+        else:
+            bcs["bottom_platen"] = fem.Boundary(field[0], mask=index == n_body)
         bcs["top_platen_lateral"] = fem.Boundary(field[0], mask=index == n_body + 1,
                                                  skip=all_but_axial)
         bcs["top_platen"] = fem.Boundary(field[0], mask=index == n_body + 1, skip=only_axial)
         up = np.zeros(dim)
         up[axial] = 1.0
+        contact_kw = {"friction": 0.0}
+        touching = side
+        if coulomb:
+            # every boundary node, the side rolling onto the platens included, with the
+            # friction (as in the solver); a sticking node slides elastically by up to 0.5 %
+            # of the smallest face cell before it slips (FElupe's advice: 0.5-1 % of a cell)
+            touching = np.where(bottom | top)[0]
+            if rollover_contact:
+                touching = np.union1d(touching, side)
+            r_face = np.unique(np.round(r_body[bottom[:n_body]], 12))
+            contact_kw = {"friction": float(friction),
+                          "elastic_slip": 0.005 * float(np.diff(r_face).min())
+                          if friction > 0.0 else None}
         for centre_point, normal in ((n_body, up), (n_body + 1, -up)):
             items.append(fem.ContactRigidPlane(
-                field, side, centre_point, normal, friction=0.0,
-                multiplier=contact_penalty, items=[solid]))
+                field, touching, centre_point, normal, multiplier=contact_penalty,
+                items=[solid], **contact_kw))
     dof0, dof1 = fem.dof.partition(field, bcs)
 
     # ---------------------------------------------------------------- increments
@@ -560,7 +626,7 @@ def compression_curve(
     disp, force, contact_force, iterations = [0.0], [0.0], [0.0], []
     for target in levels:
         f_total, f_contact, its = _advance(fem, field, items, bcs, dof0, dof1, axial,
-                                           done, target, rollover_contact)
+                                           done, target, rollover_contact or coulomb)
         done = target
         disp.append(target)
         force.append(f_total)
@@ -569,10 +635,11 @@ def compression_curve(
 
     deformed = mesh.points[:n_body] + field[0].values[:n_body]
     z_side = deformed[side, axial] if side.size else np.zeros(0)
-    top_z = H - travel_mm
-    below = float(max(0.0, -z_side.min())) if z_side.size else 0.0
+    bottom_z = 0.5 * travel_mm if coulomb else 0.0
+    top_z = H - travel_mm + bottom_z
+    below = float(max(0.0, bottom_z - z_side.min())) if z_side.size else 0.0
     above = float(max(0.0, z_side.max() - top_z)) if z_side.size else 0.0
-    n_beyond = int(np.sum((z_side < -tol) | (z_side > top_z + tol)))
+    n_beyond = int(np.sum((z_side < bottom_z - tol) | (z_side > top_z + tol)))
     n_dofs = int(sum(np.asarray(v).size for v in field.values()))
     if axisymmetric:
         volume = 2.0 * np.pi * np.sum(field[0].radius * region.dV)
@@ -600,16 +667,24 @@ def _advance(fem, field, items, bcs, dof0, dof1, axial, start, target, contact,
     """Newton-solve from travel ``start`` to ``target`` (mm), bisecting failed steps.
 
     Returns the platen force (N, compression positive), the part carried by contact and the
-    Newton iterations used.
+    Newton iterations used. A failed step restores the fields and the contacts' state
+    (their friction history) before it is bisected.
     """
     done, step, iterations = start, target - start, 0
     bisections = 0
+    contacts = [item for item in items if hasattr(item, "checkpoint")]
+    coulomb = "move" not in bcs   # both platens move by half the travel (see the caller)
     while done < target - 1e-12 * max(1.0, target):
         trial = min(target, done + step)
         saved = [np.copy(f.values) for f in field.fields]
-        bcs["move"].update(-trial)
-        if contact:
-            bcs["top_platen"].update(-trial)
+        saved_contacts = [c.checkpoint() for c in contacts]
+        if coulomb:
+            bcs["bottom_platen"].update(0.5 * trial)
+            bcs["top_platen"].update(-0.5 * trial)
+        else:
+            bcs["move"].update(-trial)
+            if contact:
+                bcs["top_platen"].update(-trial)
         ext0 = fem.dof.apply(field, bcs, dof0)
         try:
             # Newton's trial states may overshoot into inverted cells, where tensortrax's
@@ -619,10 +694,12 @@ def _advance(fem, field, items, bcs, dof0, dof1, axial, start, target, contact,
                 warnings.simplefilter("ignore", RuntimeWarning)
                 warnings.simplefilter("ignore", MatrixRankWarning)
                 res = fem.newtonraphson(field, items=items, dof1=dof1, dof0=dof0, ext0=ext0,
-                                        verbose=0)
+                                        verbose=0, solver=_finite_solve)
         except ValueError as exc:          # NewtonConvergenceError is a ValueError
             for f, v in zip(field.fields, saved, strict=True):
                 f.values[:] = v
+            for c, saved_c in zip(contacts, saved_contacts, strict=True):
+                c.restore(saved_c)
             bisections += 1
             if bisections > max_bisections:
                 raise RuntimeError(
@@ -634,9 +711,24 @@ def _advance(fem, field, items, bcs, dof0, dof1, axial, start, target, contact,
         iterations += res.iterations
         done = trial
     fun = res.fun
-    f_plate = -fem.tools.force(field, fun, bcs["move"])[axial]
+    f_plate = 0.0 if coulomb else -fem.tools.force(field, fun, bcs["move"])[axial]
     f_contact = -fem.tools.force(field, fun, bcs["top_platen"])[axial] if contact else 0.0
     return float(f_plate + f_contact), float(f_contact), int(iterations)
+
+
+def _finite_solve(A, b, **kwargs):
+    """FElupe's sparse solve, refusing a non-finite system.
+
+    SuperLU crashed the process (a segmentation fault) on a system with NaN entries, from a
+    Newton step of a frictional contact run into inverted cells; here such a step fails
+    with a ValueError and is bisected like any other.
+    """
+    from scipy.sparse.linalg import spsolve
+
+    A = A.tocsr()
+    if not (np.all(np.isfinite(A.data)) and np.all(np.isfinite(b))):
+        raise ValueError("the Newton system has non-finite entries")
+    return spsolve(A, b)
 
 
 # ============================================================================== checks

@@ -284,7 +284,8 @@ class CampaignSpec:
                     f"scenario {self.scenario!r} at magnitude {self.magnitude:g} needs "
                     f"{'a Prony series' if law.viscoelastic else 'Coulomb platens'}, which the "
                     "FElupe truth does not run (static hyperelastic, bonded or frictionless "
-                    "platens; platen_slip is frictionless above magnitude 150)")
+                    "platens: FElupe's frictional contact did not converge on every sample; "
+                    "platen_slip is frictionless above magnitude 150)")
 
     @property
     def mesh_size(self) -> tuple[int, int]:

@@ -20,6 +20,34 @@ from solver import Ogden  # noqa: E402
 MU, ALPHA = 1875.0, 4.9
 
 
+# ---------------------------------------------------------------- Coulomb platens
+def test_coulomb_platens_without_friction_are_the_frictionless_closed_form():
+    # Held by the penalty contact alone (both platens moving by half the travel, the
+    # mid-height axis node pinned), frictionless faces must still give homogeneous uniaxial
+    # compression; the penalty's penetration (< 1e-3 mm, against 2.4 mm of travel) is the
+    # only difference, hence 1e-3.
+    out = fr.compression_curve(MU, ALPHA, 0.499, platen="coulomb", friction=0.0,
+                               strain=0.1, order="linear", n_radial=4, n_axial=4,
+                               n_increments=4)
+    ref = fr.frictionless_check(MU, ALPHA, 0.499, strains=(0.05, 0.1), n_radial=2,
+                                n_axial=2)
+    for strain, closed in zip(ref["strain"], ref["closed_form_N"], strict=True):
+        i = int(np.argmin(np.abs(out["strain"] - strain)))
+        assert out["force_N"][i] == pytest.approx(closed, rel=1e-3)
+
+
+def test_coulomb_friction_lies_between_frictionless_and_bonded():
+    kw = dict(strain=0.1, order="linear", n_radial=6, n_axial=6, n_increments=4)
+    free = fr.compression_curve(MU, ALPHA, 0.499, platen="frictionless", **kw)["force_N"]
+    some = fr.compression_curve(MU, ALPHA, 0.499, platen="coulomb", friction=0.15,
+                                **kw)["force_N"]
+    more = fr.compression_curve(MU, ALPHA, 0.499, platen="coulomb", friction=0.3,
+                                **kw)["force_N"]
+    bonded = fr.compression_curve(MU, ALPHA, 0.499, platen="bonded", **kw)["force_N"]
+    assert np.all(free[1:] < some[1:]) and np.all(some[1:] < more[1:])
+    assert np.all(more[1:] < bonded[1:])
+
+
 # ---------------------------------------------------------------- homogeneous closed form
 @pytest.mark.parametrize("order", ["quadratic", "linear"])
 @pytest.mark.parametrize("nu", [0.45, 0.499])
@@ -179,7 +207,12 @@ def test_richardson_recovers_known_order_and_limit():
 @pytest.mark.parametrize(
     "kwargs, message",
     [
-        (dict(platen="coulomb"), "platen"),
+        (dict(platen="sandpaper"), "platen"),
+        (dict(platen="coulomb"), "friction"),
+        (dict(platen="coulomb", friction=-0.1), "friction"),
+        (dict(platen="bonded", friction=0.3), "friction"),
+        (dict(platen="coulomb", friction=0.3, n_axial=3), "n_axial"),
+        (dict(platen="coulomb", friction=0.3, axisymmetric=False), "axisymmetric"),
         (dict(strain=0.0), "strain"),
         (dict(nu=0.5), "nu"),
         (dict(mu_Pa=[1.0, 2.0], alpha=[4.0]), "alpha"),

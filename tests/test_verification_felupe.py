@@ -105,3 +105,46 @@ def test_ladder_error_table_is_current():
     change = np.max(np.abs(coarse["force_N"][at] / fine["force_N"][at] - 1.0))
     expected = six["rel_error"] - sixteen["rel_error"]
     assert expected / 1.5 < change < 1.5 * six["rel_error"], (change, expected)
+
+
+#: FElupe mesh of the Coulomb reference: bilinear cells (its Newton solve of frictional
+#: contact failed on quadratic ones), 12 x 12 graded 24:1.
+COULOMB_MESH = {"n_radial": 12, "n_axial": 12, "order": "linear", "n_increments": 60}
+
+
+def test_coulomb_platens_match_felupe():
+    """Coulomb platens (friction 0.15, the slip scenario's) against FElupe's frictional contact.
+
+    FElupe: penalty rigid-plane contact of every boundary node with a Coulomb return mapping
+    (elastic stick up to 0.5 % of the smallest face cell); our solver: kinematic stick-slip
+    with lumped masses and bulk viscosity on the fitting mesh. FElupe's own mesh error at
+    10-20 % is below 0.05 % (8 x 8 against 12 x 12 cells, checked here; 16 x 16 and 24 x 24
+    moved it by as little), so the verification plan's 1 % is left almost whole to ours,
+    whose measured difference is 0.01 %.
+
+    Not asserted, measured: once the bulging side meets the platens (from 22-25 % at this
+    friction, from about 13 % at 0.3) the fitting mesh's curve departs from FElupe's by up to
+    2.8 % (-2.4 % at 30 %, where FElupe moves by 0.2 % from 8 x 8 to 24 x 24 cells), in a
+    pattern that changes with the mesh and with the hourglass stiffness (-1.8, -2.4, -0.06 %
+    at 30 % for 0.02, 0.05, 0.15): the fold's corner cells bend in their hourglass modes.
+    That is the README's limit on identifying partial slip.
+    """
+    ref = fr.compression_curve(1875.0, 4.9, 0.499, strain=0.2, platen="coulomb",
+                               friction=0.15, **COULOMB_MESH)
+    coarse = fr.compression_curve(1875.0, 4.9, 0.499, strain=0.2, platen="coulomb",
+                                  friction=0.15, **{**COULOMB_MESH, "n_radial": 8,
+                                                    "n_axial": 8})
+    ours = simulate(Ogden(mu_Pa=1875.0, alpha=4.9, nu=0.499),
+                    CompressionTest(strain=0.2, platen="coulomb", friction=0.15))
+    lines, failed = [], []
+    for strain in (0.1, 0.2):
+        i = int(np.argmin(np.abs(ref["strain"] - strain)))
+        assert abs(ref["strain"][i] - strain) < 1e-9  # solved there, not interpolated
+        f_ref = ref["force_N"][i]
+        assert coarse["force_N"][i] == pytest.approx(f_ref, rel=5e-4)  # FElupe converged
+        f_ours = float(_ours_at(ours, ref["displacement_mm"][i]))
+        rel = f_ours / f_ref - 1.0
+        lines.append(f"{strain:.0%}: ours {f_ours:.5f} N, FElupe {f_ref:.5f} N, {rel:+.3%}")
+        if abs(rel) > TOLERANCE[strain]:
+            failed.append(lines[-1] + f" (tolerance {TOLERANCE[strain]:.0%})")
+    assert not failed, "; ".join(failed)
