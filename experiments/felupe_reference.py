@@ -434,7 +434,8 @@ def compression_curve(
         despite the rim singularity); 3D 2.
     rollover_contact : bool, optional
         Rigid-plane penalty contact of the side-surface nodes with both platens. Default:
-        on for bonded platens, off for frictionless ones (where the side never meets them).
+        on for bonded and Coulomb platens, off for frictionless ones (where the side never
+        meets them).
     contact_penalty : float
         FElupe's contact multiplier, relative to the mean stiffness of the contact nodes.
         The default 1000 leaves about 3e-4 mm penetration at 30 % on a 16 x 16 mesh, and
@@ -481,6 +482,9 @@ def compression_curve(
         if int(n_axial) % 2:
             raise ValueError(f"n_axial={n_axial} must be even with platen='coulomb' (a node "
                              "row at mid-height holds the sample's axial position)")
+        if layers:
+            raise ValueError("platen='coulomb' takes no layers: the node held at mid-height "
+                             "needs a sample symmetric about it")
     elif friction is not None:
         raise ValueError(f"friction={friction!r} is for platen='coulomb' only "
                          f"(platen={platen!r})")
@@ -626,7 +630,8 @@ def compression_curve(
     disp, force, contact_force, iterations = [0.0], [0.0], [0.0], []
     for target in levels:
         f_total, f_contact, its = _advance(fem, field, items, bcs, dof0, dof1, axial,
-                                           done, target, rollover_contact or coulomb)
+                                           done, target, rollover_contact or coulomb,
+                                           symmetric=coulomb)
         done = target
         disp.append(target)
         force.append(f_total)
@@ -663,22 +668,22 @@ def compression_curve(
 
 
 def _advance(fem, field, items, bcs, dof0, dof1, axial, start, target, contact,
-             max_bisections=8):
+             symmetric=False, max_bisections=8):
     """Newton-solve from travel ``start`` to ``target`` (mm), bisecting failed steps.
 
-    Returns the platen force (N, compression positive), the part carried by contact and the
-    Newton iterations used. A failed step restores the fields and the contacts' state
-    (their friction history) before it is bisected.
+    ``symmetric``: both platens move by half the travel (Coulomb platens), otherwise the top
+    face and platen move by all of it. Returns the platen force (N, compression positive),
+    the part carried by contact and the Newton iterations used. A failed step restores the
+    fields and the contacts' state (their friction history) before it is bisected.
     """
     done, step, iterations = start, target - start, 0
     bisections = 0
     contacts = [item for item in items if hasattr(item, "checkpoint")]
-    coulomb = "move" not in bcs   # both platens move by half the travel (see the caller)
     while done < target - 1e-12 * max(1.0, target):
         trial = min(target, done + step)
         saved = [np.copy(f.values) for f in field.fields]
         saved_contacts = [c.checkpoint() for c in contacts]
-        if coulomb:
+        if symmetric:
             bcs["bottom_platen"].update(0.5 * trial)
             bcs["top_platen"].update(-0.5 * trial)
         else:
@@ -711,7 +716,7 @@ def _advance(fem, field, items, bcs, dof0, dof1, axial, start, target, contact,
         iterations += res.iterations
         done = trial
     fun = res.fun
-    f_plate = 0.0 if coulomb else -fem.tools.force(field, fun, bcs["move"])[axial]
+    f_plate = 0.0 if symmetric else -fem.tools.force(field, fun, bcs["move"])[axial]
     f_contact = -fem.tools.force(field, fun, bcs["top_platen"])[axial] if contact else 0.0
     return float(f_plate + f_contact), float(f_contact), int(iterations)
 

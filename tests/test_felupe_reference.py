@@ -213,6 +213,8 @@ def test_richardson_recovers_known_order_and_limit():
         (dict(platen="bonded", friction=0.3), "friction"),
         (dict(platen="coulomb", friction=0.3, n_axial=3), "n_axial"),
         (dict(platen="coulomb", friction=0.3, axisymmetric=False), "axisymmetric"),
+        (dict(platen="coulomb", friction=0.3, layers=[12.0], mu_Pa=[1.0, 2.0],
+              alpha=[4.0, 4.0]), "symmetric"),
         (dict(strain=0.0), "strain"),
         (dict(nu=0.5), "nu"),
         (dict(mu_Pa=[1.0, 2.0], alpha=[4.0]), "alpha"),
