@@ -780,13 +780,13 @@ class PlatenSlip(_GridForwardEffect):
     # 0.5-2 % in a pattern that changes with the mesh and the sample's geometry (0.6 % even on
     # 40 x 50 quads). That pattern is the solver's, not the physics': FElupe's frictional
     # contact at friction 0.15 converges smoothly there (0.2 % from 8 x 8 to 24 x 24 cells);
-    # the fitting mesh's curve agrees with it to 0.02 % up to 22 % and then departs by up to
-    # 2.8 %, at 30 % by -1.8, -2.4 or -0.06 % for an hourglass stiffness of 0.02, 0.05 (the
-    # default) or 0.15: the fold's corner cells bend in their hourglass modes. Slip's
-    # signature once mu and alpha are refitted lies in those levels: on the generated slip
-    # campaign (friction 0.15) the candidate returns to bonded when the levels stop at 20 %,
-    # and is worse than bonded at 0.15 over all levels (tabulated at four alphas too; on the
-    # generating mesh's density 0.15 beats bonded, 0.05 fits better still).
+    # the fitting mesh's curve agrees with its 12 x 12 cells' to 0.02 % up to 22 %, then
+    # departs by up to 2.8 %, at 30 % by -1.8, -2.4 or -0.06 % for an hourglass stiffness of
+    # 0.02, 0.05 (the default) or 0.15: the fold's corner cells bend in their hourglass modes.
+    # Slip's signature once mu and alpha are refitted lies in those levels: on the generated
+    # slip campaign (friction 0.15) the candidate returns to bonded when the levels stop at
+    # 20 %, and is worse than bonded at 0.15 over all levels (tabulated at four alphas too;
+    # on the generating mesh's density 0.15 beats bonded, 0.05 fits better still).
     # Tabulated at four alphas (as compressibility): wholly unbonded platens lower the base
     # fit's alpha by about one (5 -> 4 on FElupe-made frictionless data), and tabulated at
     # that alpha alone the candidate could not move alpha back and ended near bonded
