@@ -94,7 +94,7 @@ import warnings
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.sparse.linalg import MatrixRankWarning
+from scipy.sparse.linalg import MatrixRankWarning, spsolve
 
 __all__ = [
     "LADDER",
@@ -728,8 +728,6 @@ def _finite_solve(A, b, **kwargs):
     Newton step of a frictional contact run into inverted cells; here such a step fails
     with a ValueError and is bisected like any other.
     """
-    from scipy.sparse.linalg import spsolve
-
     A = A.tocsr()
     if not (np.all(np.isfinite(A.data)) and np.all(np.isfinite(b))):
         raise ValueError("the Newton system has non-finite entries")
