@@ -10,16 +10,17 @@ each worker compiling everything itself).
 
 The slow tests run first. The four longest (the README's run of the whole discrepancy
 workflow, 12-15 minutes in CI, the notebook's on one layer, 2-3 minutes alone, and the two
-campaigns made by FElupe, 2-5 minutes in CI) come in an order that xdist's ``--maxschedchunk 2`` (two tests per
-worker at the start) hands out as README + FElupe clean to one worker and notebook + FElupe
-slip to the other; the rest follows as workers come free. In collection order both workflow
-runs fell late and the run ended on one worker. When the FElupe tests lost their magnitude
-parameter (ids ``[clean-1.0]`` to ``[clean]``) this list kept the old ids, and the README and
-notebook runs went to the same worker, one after the other; since then
-``tests/test_readme.py::test_the_tests_started_first_for_ci_exist`` checks the list against
-the collection. pytest keeps both cores busy either way (CI at 502e00b: 2342 s of CPU over
-a 1283 s run, 1098 s of it pytest, the rest mostly the single-core install), so the order
-shortens a run only where one worker would otherwise sit idle.
+campaigns made by FElupe, 2-5 minutes in CI) come in an order that xdist's
+``--maxschedchunk 2`` (two tests per worker at the start) hands out as README + FElupe clean
+to one worker and notebook + FElupe slip to the other; the rest follows as workers come
+free. In collection order both workflow runs fell late and the run ended on one worker. When
+the FElupe tests lost their magnitude parameter (ids ``[clean-1.0]`` to ``[clean]``) this
+list kept the old ids, and the README and notebook runs went to the same worker, one after
+the other; since then ``tests/test_readme.py::test_the_tests_started_first_for_ci_exist``
+checks the list against the collection. pytest keeps both cores busy either way (CI at
+502e00b: 2342 s of CPU over a 1283 s run, 1098 s of it pytest, the rest mostly the
+single-core install), so the order shortens a run only where one worker would otherwise sit
+idle.
 """
 
 #: The longest tests, in the order they are started (see the module notes).
