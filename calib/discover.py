@@ -1946,7 +1946,7 @@ def _prepare_job(fit: LayerFit, settings: FitSettings, names: Sequence[str],
     correction: how much the finer mesh of the fit's correction changes the effect's relative
     change of the force at ``theta``, beyond the base model's correction.
     """
-    forward = ForwardModel(mesh_scale=settings.mesh_scale)
+    forward = ForwardModel.for_settings(settings)
     ctx = LayerContext(fit, forward, settings)
     if alpha_ref is not None:
         ctx.alpha_ref = alpha_ref
@@ -2334,7 +2334,7 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
     if not base.fits:
         raise ValueError("no layer could be fitted: " + "; ".join(
             f"{k}: {v}" for k, v in base.failed.items()))
-    forward = ForwardModel(mesh_scale=settings.mesh_scale)
+    forward = ForwardModel.for_settings(settings)
     contexts = [LayerContext(base.fits[k], forward, settings) for k in sorted(base.fits)]
     n_cycles = sum(len(ctx.data.cycles) for ctx in contexts)
     candidates_all = [make_effect(name) for name in effects]

@@ -35,9 +35,15 @@ from experiments.scenarios import SCENARIOS
 
 
 def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: float = 1.0,
-            keep: Path | None = None, truth_code: str = "solver") -> dict:
-    """Generate one campaign, run discovery with every candidate recorded, return a record."""
+            keep: Path | None = None, truth_code: str = "solver",
+            axial_ratio: float = 3.0) -> dict:
+    """Generate one campaign, run discovery with every candidate recorded, return a record.
+
+    ``axial_ratio`` grades both the generating and the fitting meshes along the height
+    (:class:`calib.fit.FitSettings`).
+    """
     from calib.discover import THRESHOLDS, discover_campaign
+    from calib.fit import FitSettings
     from calib.loaders import load_campaign
     from experiments.generator import generate_campaign
 
@@ -45,12 +51,13 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
     folder = tmp / "campaign"
     start = time.perf_counter()
     generate_campaign(folder, scenario=scenario, seed=seed, layers=tuple(layers), fast=fast,
-                      magnitude=magnitude, truth_code=truth_code)
+                      magnitude=magnitude, truth_code=truth_code, axial_ratio=axial_ratio)
     truth = json.loads((folder / "truth.json").read_text())
     campaign = load_campaign(folder)
     t_gen = time.perf_counter() - start
     # thresholds off: every plausible leading candidate gets its held-out check
-    result = discover_campaign(campaign, progress=False, log=lambda *a: None,
+    result = discover_campaign(campaign, settings=FitSettings(axial_ratio=axial_ratio),
+                               progress=False, log=lambda *a: None,
                                thresholds={"delta_bic_per_cycle": math.inf,
                                            "heldout_improvement": -math.inf},
                                max_rounds=1)
@@ -59,7 +66,7 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
     named, also_possible = decide_all(candidates, THRESHOLDS, len(campaign.cycles))
     record = {
         "scenario": scenario, "seed": seed, "layers": layers, "fast": fast,
-        "magnitude": magnitude, "truth_code": truth_code,
+        "magnitude": magnitude, "truth_code": truth_code, "axial_ratio": axial_ratio,
         "truth": truth["scenario"].get("parameters", {}),
         "candidates": candidates,
         "rms_before_N": result.rms_before_N, "rms_after_N": result.rms_after_N,
@@ -214,6 +221,9 @@ def main(argv=None) -> int:
                    help="of every scenario without its own (NAME@M in --scenarios)")
     p.add_argument("--truth-code", choices=TRUTH_CODES, default="solver",
                    help="the code that makes the campaigns' curves")
+    p.add_argument("--axial-ratio", type=float, default=3.0,
+                   help="largest over smallest element height of the generating and the "
+                        "fitting meshes (default 3)")
     p.add_argument("--out", required=True,
                    help="folder for runs.jsonl (with --summary, also a .jsonl file)")
     p.add_argument("--summary", action="store_true", help="only print the summary of OUT")
@@ -239,7 +249,7 @@ def main(argv=None) -> int:
             magnitude = float(own) if own else args.magnitude
             try:
                 record = run_one(scenario, seed, layers, args.fast, magnitude,
-                                 truth_code=args.truth_code)
+                                 truth_code=args.truth_code, axial_ratio=args.axial_ratio)
             except Exception as exc:  # one run's failure must not lose the others
                 record = {"scenario": scenario, "seed": seed, "layers": layers,
                           "fast": args.fast, "magnitude": magnitude,

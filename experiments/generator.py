@@ -238,6 +238,9 @@ class CampaignSpec:
         The code that makes the hyperelastic curves: this project's explicit solver, or FElupe
         (static, independent; bonded or frictionless platens, no Prony terms; ``fast`` then
         has no effect).
+    axial_ratio : float
+        Largest over smallest element height of the solver's meshes (3, the fitting
+        default, unless the fitting mesh is graded otherwise too: ``FitSettings.axial_ratio``).
     sensor, scatter, programme
         Sensor model, sample scatter and rig programme.
     filename_only_probability : float
@@ -252,6 +255,7 @@ class CampaignSpec:
     rates: tuple[float, ...] = RATES
     fast: bool = False
     truth_code: str = "solver"
+    axial_ratio: float = 3.0
     sensor: SensorModel = dataclasses.field(default_factory=SensorModel)
     scatter: Scatter = dataclasses.field(default_factory=Scatter)
     programme: RigProgramme = dataclasses.field(default_factory=RigProgramme)
@@ -274,6 +278,9 @@ class CampaignSpec:
         object.__setattr__(self, "rates", rates)
         if not 0 <= self.filename_only_probability <= 1:
             raise ValueError("filename_only_probability must lie in [0, 1]")
+        if not (math.isfinite(self.axial_ratio) and self.axial_ratio >= 1.0):
+            raise ValueError(f"axial_ratio={self.axial_ratio!r} must be a finite number >= 1 "
+                             "(largest over smallest element height)")
         if self.truth_code not in TRUTH_CODES:
             raise ValueError(f"truth_code {self.truth_code!r} is not one of "
                              f"{', '.join(TRUTH_CODES)}")
@@ -305,7 +312,7 @@ class CampaignSpec:
             "rates_mm_per_s": list(self.rates), "fast": self.fast,
             "truth_code": self.truth_code,
             "mesh": ({"n_radial": self.mesh_size[0], "n_axial": self.mesh_size[1],
-                      "n_out": N_OUT} if self.truth_code == "solver" else
+                      "axial_ratio": float(self.axial_ratio), "n_out": N_OUT} if self.truth_code == "solver" else
                      {"code": "felupe", "n_radial": FELUPE_MESH[0], "n_axial": FELUPE_MESH[1],
                       "order": "quadratic", "increments": FELUPE_INCREMENTS}),
             "sensor": self.sensor.to_dict(), "scatter": dataclasses.asdict(self.scatter),
@@ -446,13 +453,14 @@ def plan_campaign(spec: CampaignSpec) -> tuple[list[SamplePlan], list[CyclePlan]
 
 
 # ---------------------------------------------------------------------- physics
-def _simulate_curve(material: Ogden, meta: CycleMeta, law: CycleLaw, mesh_size, rate: float):
+def _simulate_curve(material: Ogden, meta: CycleMeta, law: CycleLaw, mesh_size, rate: float,
+                    axial_ratio: float):
     """Loading curve (sample compression u in mm, force in N) of one solver run."""
     test = CompressionTest(diameter_mm=meta.diameter_mm, height_mm=meta.height_mm,
                            strain=STRAIN, rate_mm_per_s=rate, platen=law.platen,
                            friction=law.friction, ramp="constant")
     mesh = axisymmetric_cylinder(meta.diameter_mm, meta.height_mm, n_radial=mesh_size[0],
-                                 n_axial=mesh_size[1])
+                                 n_axial=mesh_size[1], axial_ratio=axial_ratio)
     result = simulate(material, test, mesh=mesh, n_out=N_OUT)
     return np.asarray(result.displacement_mm, float), np.asarray(result.force_N, float)
 
@@ -478,8 +486,9 @@ class _CurveCache:
     """
 
     def __init__(self, progress: Callable[[str], None] | None = None,
-                 truth_code: str = "solver"):
+                 truth_code: str = "solver", axial_ratio: float = 3.0):
         self.truth_code = truth_code
+        self.axial_ratio = axial_ratio
         self._store: dict = {}
         self.n_runs = 0
         self.wall_s = 0.0
@@ -505,9 +514,10 @@ class _CurveCache:
                 if self.truth_code == "felupe":
                     u, f = _felupe_curve(unit, meta, law)
                 else:
-                    u, f = _simulate_curve(unit, meta, law, mesh_size, rate)
+                    u, f = _simulate_curve(unit, meta, law, mesh_size, rate,
+                                           self.axial_ratio)
             else:
-                u, f = _simulate_curve(material, meta, law, mesh_size, rate)
+                u, f = _simulate_curve(material, meta, law, mesh_size, rate, self.axial_ratio)
             self.wall_s += time.perf_counter() - start
             self.n_runs += 1
             self._store[key] = (u, f)
@@ -759,7 +769,7 @@ def generate_campaign(out: str | os.PathLike, spec: CampaignSpec | None = None, 
         f"seed {spec.seed}, layers {','.join(spec.layers)}, "
         + (f"mesh {spec.mesh_size[0]}x{spec.mesh_size[1]}" if spec.truth_code == "solver" else
            f"FElupe {FELUPE_MESH[0]}x{FELUPE_MESH[1]} quadratic"))
-    cache = _CurveCache(progress, spec.truth_code)
+    cache = _CurveCache(progress, spec.truth_code, spec.axial_ratio)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
     try:

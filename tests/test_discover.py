@@ -348,7 +348,7 @@ def layer_a_context():
     cycles = _layer("A", 1875.0, 4.9, [(38.0, 24.0), (37.6, 24.3), (38.0, 24.0)])
     base = fit_campaign(Campaign(root="mem", cycles=tuple(cycles)), settings, max_workers=1,
                         progress=False)
-    ctx = LayerContext(base.fits["A"], ForwardModel(mesh_scale=settings.mesh_scale), settings)
+    ctx = LayerContext(base.fits["A"], ForwardModel.for_settings(settings), settings)
     _prepare([ctx], settings, ["machine_compliance", "contact_offset", "compressibility"],
              None, 1, None, False)
     return ctx
