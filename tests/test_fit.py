@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from calib.fit import (
+    CurveKey,
     FitSettings,
     ForwardModel,
     fit_campaign,
@@ -193,6 +194,28 @@ def test_bad_layers_give_clear_messages_and_others_still_fit():
     with pytest.raises(ValueError, match="several layers"):
         layer_data(good + lonely)
 
+
+
+def test_axial_ratio_grades_the_fitting_and_correction_meshes():
+    """``FitSettings.axial_ratio`` reaches every solve of the forward model; bad values fail."""
+    key = CurveKey(alpha=(4.9,), diameter_mm=38.0, height_mm=24.0)
+    graded = ForwardModel.for_settings(FitSettings(axial_ratio=10.0))
+    assert graded.axial_ratio == 10.0
+    unit = Ogden(mu_Pa=1.0, alpha=4.9)
+    for scale, shape in ((1.0, (14, 18)), (2.0, (28, 36))):  # fitting, correction mesh
+        mesh = axisymmetric_cylinder(38.0, 24.0, *shape, axial_ratio=10.0)
+        direct = simulate(unit, CompressionTest(strain=graded.strain_max), mesh,
+                          n_out=graded.n_out)
+        travel = direct.displacement_mm[4::4]  # the spline's own nodes: the same solve
+        assert graded.curve(key, scale)(travel) == pytest.approx(direct.force_N[4::4],
+                                                                 rel=1e-9)
+    # not the default mesh's: bonded curves move by tenths of a percent with the grading
+    default = ForwardModel.for_settings(FitSettings())
+    change = graded.unit_forces(key, travel) / default.unit_forces(key, travel) - 1.0
+    assert 1e-4 < np.max(np.abs(change)) < 0.01
+    for bad in (0.5, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="axial_ratio"):
+            FitSettings(axial_ratio=bad)
 
 @pytest.mark.slow
 def test_dask_executor_fits_layers_on_a_local_cluster():

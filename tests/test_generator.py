@@ -222,6 +222,9 @@ def test_bad_specifications_are_refused_with_a_reason():
     spec = CampaignSpec(scenario="platen_slip", magnitude=1000.0, truth_code="felupe")
     assert spec.to_dict()["truth_code"] == "felupe"
     assert spec.to_dict()["mesh"]["code"] == "felupe"
+    for bad in (0.9, float("nan")):
+        with pytest.raises(ValueError, match="axial_ratio"):
+            CampaignSpec(axial_ratio=bad)
 
 
 def test_slip_becomes_frictionless_below_a_thousandth():
@@ -379,6 +382,26 @@ def test_truth_file_records_the_campaign(clean_ab):
         s = truth["samples"][c["sample"]]
         assert c["material"]["mu_Pa"] == [s["mu_Pa"]] and c["material"]["alpha"] == [s["alpha"]]
         assert c["platen"] == "bonded" and c["contact_mm"] == c["first_touch_mm"]
+
+
+def test_axial_ratio_grades_the_generating_mesh(tmp_path):
+    """The truth's mesh grading is recorded and moves the curves (slightly), nothing else."""
+    def make(ratio, name):
+        out = tmp_path / name
+        generate_campaign(out, scenario="clean", seed=3, layers="D", n_samples=1, fast=True,
+                          axial_ratio=ratio)
+        return json.loads((out / "truth.json").read_text())
+
+    t3, t10 = make(3.0, "a3"), make(10.0, "a10")
+    assert (t3["spec"]["mesh"]["axial_ratio"], t10["spec"]["mesh"]["axial_ratio"]) == (3.0, 10.0)
+    assert len(t3["cycles"]) == len(t10["cycles"]) == 3
+    for a, b in zip(t3["cycles"], t10["cycles"]):
+        forces = ("curve", "peak_force_N")
+        assert {k: v for k, v in a.items() if k not in forces} == \
+            {k: v for k, v in b.items() if k not in forces}
+        (u3, f3), (u10, f10) = truth_curve(a), truth_curve(b)
+        change = np.abs(np.interp(u3, u10, f10) - f3).max() / f3.max()
+        assert 1e-5 < change < 0.01
 
 
 def test_same_seed_same_bytes_other_seed_other_bytes(tmp_path):
