@@ -134,11 +134,15 @@ class FitSettings:
         Mesh density relative to the solver's default mesh.
     axial_ratio : float
         Largest over smallest element height of the fitting mesh and of its correction mesh
-        (:func:`solver.mesh.axisymmetric_cylinder`; cells shrink towards both platens). The
-        default 3 resolves bonded platens; where the bulging side folds onto sliding platens
-        (Coulomb friction, beyond about 22 % strain) the fitting mesh's force departs from
-        finer meshes' and from FElupe's by up to 2.8 %, and 10 brings that under 0.5 % (see
-        the README's limits) at about twice the time steps.
+        (:func:`solver.mesh.axisymmetric_cylinder`; cells shrink towards both platens).
+        Where the bulging side folds onto the platens (beyond about 22 % strain) the default
+        3 puts node-by-node bumps into the curves. With Coulomb platens (friction 0.15) the
+        fitting mesh's force departs from FElupe's (12 x 12 cells) by up to 2.8 % at 3 and
+        0.97 % at 10 (at 25.5 %, where the first side node lands, at every grading; beyond
+        27.5 %: 2.8 against 0.44 %), and from the 24 x 30 generating mesh's by 2.1 and 0.5 %.
+        Bonded curves move by up to 0.7 % (at 24 %) from 3 to 10, and the 14 x 18 and 24 x
+        30 meshes then differ by a smooth 0.2-0.4 % instead of -0.5 to +0.4 %. A grading of
+        10 about doubles the time steps (a Coulomb solve takes 2.3 s instead of 1.3 s).
     mesh_correction : float or None
         Mesh scale of the discretisation correction: the unit responses are multiplied by the
         ratio of a solve on this finer mesh to one on the fitting mesh, at the layer's median
