@@ -312,7 +312,8 @@ class CampaignSpec:
             "rates_mm_per_s": list(self.rates), "fast": self.fast,
             "truth_code": self.truth_code,
             "mesh": ({"n_radial": self.mesh_size[0], "n_axial": self.mesh_size[1],
-                      "axial_ratio": float(self.axial_ratio), "n_out": N_OUT} if self.truth_code == "solver" else
+                      "axial_ratio": float(self.axial_ratio), "n_out": N_OUT}
+                     if self.truth_code == "solver" else
                      {"code": "felupe", "n_radial": FELUPE_MESH[0], "n_axial": FELUPE_MESH[1],
                       "order": "quadratic", "increments": FELUPE_INCREMENTS}),
             "sensor": self.sensor.to_dict(), "scatter": dataclasses.asdict(self.scatter),

@@ -195,7 +195,6 @@ def test_bad_layers_give_clear_messages_and_others_still_fit():
         layer_data(good + lonely)
 
 
-
 def test_axial_ratio_grades_the_fitting_and_correction_meshes():
     """``FitSettings.axial_ratio`` reaches every solve of the forward model; bad values fail."""
     key = CurveKey(alpha=(4.9,), diameter_mm=38.0, height_mm=24.0)
@@ -216,6 +215,7 @@ def test_axial_ratio_grades_the_fitting_and_correction_meshes():
     for bad in (0.5, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="axial_ratio"):
             FitSettings(axial_ratio=bad)
+
 
 @pytest.mark.slow
 def test_dask_executor_fits_layers_on_a_local_cluster():
