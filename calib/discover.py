@@ -75,7 +75,8 @@ The workflow names the missing effect, adds it to the model, refits, and shows t
 
 After an effect is accepted (and for a candidate's held-out check), the noise model is
 re-estimated with it: the covariance of the samples' (ln mu, alpha) from fits of every sample
-alone with the extended model, the cycle and level scatter from its residuals. Held-out
+alone with the extended model, the cycle and level scatter (and with
+``FitSettings.contact_noise`` the scatter of each cycle's contact reading) from its residuals. Held-out
 residuals are whitened with that scatter linearised about the layer's fit, along the extended
 model's sensitivities (see ``_sensitivities``). Effects tabulated at one alpha are tabulated again when the final
 refits move a layer's alpha by more than :data:`RETABULATE_ALPHA` from it.
@@ -1559,43 +1560,99 @@ def _fit_candidates(contexts, accepted: Model, effects, workers, scheduler):
                 yield pool.submit(_candidate_job, contexts, accepted, effect).result()
 
 
+def _travel_slope(ctx: LayerContext, pred: np.ndarray) -> np.ndarray:
+    """Slope (n_points,) of each cycle's predicted force along its travel (N/mm).
+
+    Central differences between a cycle's levels, one-sided at its ends; a cycle with one
+    level takes the secant from the contact.
+    """
+    slope = np.empty(len(pred))
+    for c in np.unique(ctx.cycle):
+        idx = np.flatnonzero(ctx.cycle == c)
+        x = ctx.travel[idx]
+        slope[idx] = np.gradient(pred[idx], x) if len(idx) > 1 else pred[idx] / x
+    return slope
+
+
+def _trend_design(ctx: LayerContext, cycles: np.ndarray) -> np.ndarray:
+    """Regressors (n_cycles, n_samples + 2) of a per-cycle quantity's trends.
+
+    The cycle's sample, its test order and log rate (what rate dependence and
+    preconditioning would explain).
+    """
+    infos = [ctx.data.cycles[c] for c in cycles]
+    samples = sorted({i.sample for i in infos})
+    return np.column_stack([[1.0 * (i.sample == s) for i in infos] for s in samples]
+                           + [[i.test for i in infos],
+                              [math.log10(i.rate_mm_per_s) for i in infos]])
+
+
 def _structure_free_noise(ctx: LayerContext, pred: np.ndarray, J: np.ndarray,
                           sample_cov: np.ndarray) -> None:
     """Noise model for judging candidate effects, free of the structure they might explain.
 
-    The scatter between samples comes from the base fit's per-sample fits. The scatter of a
-    cycle's level is what remains of its mean residual after sample means and linear trends in
-    test order and log rate (what rate dependence and preconditioning would explain); the
-    scatter between levels is the cycle-by-level interaction, after cycle means and the mean
-    shape of the layer's residuals (what the shape effects would explain). Judged with the base
-    fit's own variance components instead, structured misfit would count as noise and hide the
-    effects the workflow is looking for.
+    The scatter between samples comes from the base fit's per-sample fits. The relative
+    residuals, less the layer's mean at each level (which holds any shape the effects would
+    explain), are regressed per cycle on a constant (its scale) and, with
+    ``FitSettings.contact_noise``, on the force's relative slope along the travel (its shift:
+    the scatter of the loader's contact reading). The scatter of a cycle's scale (and of its
+    shift) is what remains of those coefficients after sample means and linear trends in test
+    order and log rate (what rate dependence and preconditioning would explain), less their
+    own estimation noise; the scatter between levels is what remains of the residuals about
+    the per-cycle lines. Judged with the base fit's own variance components instead,
+    structured misfit would count as noise and hide the effects the workflow is looking for.
     """
     from .fit import NoiseModel
 
+    with_contact = ctx.unit.settings.contact_noise
     q = ctx.y / pred - 1.0
+    slope = _travel_slope(ctx, pred)
+    g = slope / pred  # relative force change per mm of travel shift, (n_points,)
     cycles = np.unique(ctx.cycle)
     levels = np.unique(ctx.level)
-    cyc_mean = np.array([q[ctx.cycle == c].mean() for c in cycles])
-    lev_mean = np.array([q[ctx.level == v].mean() for v in levels])
-    inter = q - cyc_mean[np.searchsorted(cycles, ctx.cycle)] \
-        - lev_mean[np.searchsorted(levels, ctx.level)] + q.mean()
-    dof = max(len(q) - len(cycles) - len(levels) + 1, 1)
-    s_e2 = float(inter @ inter) / dof
-    infos = [ctx.data.cycles[c] for c in cycles]
-    samples = sorted({i.sample for i in infos})
-    X = np.column_stack([[1.0 * (i.sample == s) for i in infos] for s in samples]
-                        + [[i.test for i in infos], [math.log10(i.rate_mm_per_s) for i in infos]])
-    coef, *_ = np.linalg.lstsq(X, cyc_mean, rcond=None)
-    rss = float(np.sum((cyc_mean - X @ coef) ** 2))
-    dof_c = len(cyc_mean) - np.linalg.matrix_rank(X)
-    m = len(q) / len(cycles)
-    s_a2 = max(0.0, rss / dof_c - s_e2 / m) if dof_c > 0 else 0.0
-    noise = NoiseModel(sample_cov, math.sqrt(s_a2), max(math.sqrt(s_e2), 1e-4))
+    lev_at = np.searchsorted(levels, ctx.level)
+    lev_q = np.array([q[lev_at == v].mean() for v in range(len(levels))])
+    # per cycle: its scale (the intercept) and its shift along the travel (the slope's
+    # coefficient), each with its estimation variance per unit level variance
+    scale, shift = np.zeros(len(cycles)), np.zeros(len(cycles))
+    scale_var, shift_var = np.zeros(len(cycles)), np.zeros(len(cycles))
+    ss_e, n_fitted = 0.0, 0
+    for i, c in enumerate(cycles):
+        idx = np.flatnonzero(ctx.cycle == c)
+        r = q[idx] - lev_q[lev_at[idx]]
+        X = np.column_stack([np.ones(len(idx)), g[idx]])
+        if not (with_contact and len(idx) > 2 and np.ptp(g[idx]) > 0):
+            X = X[:, :1]
+        coef, *_ = np.linalg.lstsq(X, r, rcond=None)
+        inv = np.linalg.inv(X.T @ X)
+        scale[i] = coef[0] + lev_q[lev_at[idx]].mean()
+        scale_var[i] = inv[0, 0]
+        if X.shape[1] == 2:
+            shift[i], shift_var[i] = coef[1], inv[1, 1]
+        e = r - X @ coef
+        ss_e += float(e @ e)
+        n_fitted += X.shape[1]
+    dof = max(len(q) - n_fitted - len(levels) + 1, 1)
+    s_e2 = ss_e / dof
+    X = _trend_design(ctx, cycles)
+    dof_c = len(cycles) - np.linalg.matrix_rank(X)
+
+    def remaining(values, estimation_var):
+        """Variance of ``values`` about the trends, less their estimation noise."""
+        if dof_c <= 0:
+            return 0.0
+        coef, *_ = np.linalg.lstsq(X, values, rcond=None)
+        ss = float(np.sum((values - X @ coef) ** 2)) / dof_c
+        return max(0.0, ss - s_e2 * float(np.mean(estimation_var)))
+
+    s_a2 = remaining(scale, scale_var)
+    s_c2 = remaining(shift, shift_var) if with_contact else 0.0
+    noise = NoiseModel(sample_cov, math.sqrt(s_a2), max(math.sqrt(s_e2), 1e-4),
+                       math.sqrt(s_c2))
     grid = np.full(ctx.data.valid.shape, np.nan)
     grid[ctx.data.valid] = pred
-    ctx.cov = noise.covariance(ctx.data, grid, J, relative=False)
-    ctx.within = noise.covariance(ctx.data, grid, None, relative=False)
+    ctx.cov = noise.covariance(ctx.data, grid, J, relative=False, slope=slope)
+    ctx.within = noise.covariance(ctx.data, grid, None, relative=False, slope=slope)
     ctx.sample_root = _root(sample_cov)
     ctx.noise = noise
     ctx._w.clear()

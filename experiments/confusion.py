@@ -11,6 +11,9 @@ decided with the current thresholds, and one JSON line per run is appended to
 ``OUT/runs.jsonl``. ``--summary`` prints the confusion table and, for null runs, the thresholds
 that keep the false-positive rate at or below 5 %.
 
+``--contact-noise`` judges with a per-cycle scatter of the contact reading in the noise model
+(``calib.fit.FitSettings.contact_noise``).
+
 ``--truth-code felupe`` makes the campaigns' curves with FElupe instead of this project's
 solver (an independent code; scenarios without Prony terms or Coulomb platens), and a
 scenario may carry its own magnitude, e.g. wholly unbonded (frictionless) platens::
@@ -36,11 +39,12 @@ from experiments.scenarios import SCENARIOS
 
 def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: float = 1.0,
             keep: Path | None = None, truth_code: str = "solver",
-            axial_ratio: float = 3.0) -> dict:
+            axial_ratio: float = 3.0, contact_noise: bool = False) -> dict:
     """Generate one campaign, run discovery with every candidate recorded, return a record.
 
-    ``axial_ratio`` grades both the generating and the fitting meshes along the height
-    (:class:`calib.fit.FitSettings`).
+    ``axial_ratio`` grades both the generating and the fitting meshes along the height;
+    ``contact_noise`` gives the judging noise model its contact-reading term (both
+    :class:`calib.fit.FitSettings`).
     """
     from calib.discover import THRESHOLDS, discover_campaign
     from calib.fit import FitSettings
@@ -56,7 +60,8 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
     campaign = load_campaign(folder)
     t_gen = time.perf_counter() - start
     # thresholds off: every plausible leading candidate gets its held-out check
-    result = discover_campaign(campaign, settings=FitSettings(axial_ratio=axial_ratio),
+    settings = FitSettings(axial_ratio=axial_ratio, contact_noise=contact_noise)
+    result = discover_campaign(campaign, settings=settings,
                                progress=False, log=lambda *a: None,
                                thresholds={"delta_bic_per_cycle": math.inf,
                                            "heldout_improvement": -math.inf},
@@ -67,6 +72,7 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
     record = {
         "scenario": scenario, "seed": seed, "layers": layers, "fast": fast,
         "magnitude": magnitude, "truth_code": truth_code, "axial_ratio": axial_ratio,
+        "contact_noise": contact_noise,
         "truth": truth["scenario"].get("parameters", {}),
         "candidates": candidates,
         "rms_before_N": result.rms_before_N, "rms_after_N": result.rms_after_N,
@@ -224,6 +230,9 @@ def main(argv=None) -> int:
     p.add_argument("--axial-ratio", type=float, default=3.0,
                    help="largest over smallest element height of the generating and the "
                         "fitting meshes (default 3)")
+    p.add_argument("--contact-noise", action="store_true",
+                   help="judge with a per-cycle scatter of the contact reading in the noise "
+                        "model (FitSettings.contact_noise)")
     p.add_argument("--out", required=True,
                    help="folder for runs.jsonl (with --summary, also a .jsonl file)")
     p.add_argument("--summary", action="store_true", help="only print the summary of OUT")
@@ -249,11 +258,13 @@ def main(argv=None) -> int:
             magnitude = float(own) if own else args.magnitude
             try:
                 record = run_one(scenario, seed, layers, args.fast, magnitude,
-                                 truth_code=args.truth_code, axial_ratio=args.axial_ratio)
+                                 truth_code=args.truth_code, axial_ratio=args.axial_ratio,
+                                 contact_noise=args.contact_noise)
             except Exception as exc:  # one run's failure must not lose the others
                 record = {"scenario": scenario, "seed": seed, "layers": layers,
                           "fast": args.fast, "magnitude": magnitude,
-                          "truth_code": args.truth_code,
+                          "truth_code": args.truth_code, "axial_ratio": args.axial_ratio,
+                          "contact_noise": args.contact_noise,
                           "failed": f"{type(exc).__name__}: {exc}"}
                 print(f"{scenario} seed {seed}: failed ({record['failed']})", file=sys.stderr,
                       flush=True)

@@ -212,6 +212,90 @@ def test_systematic_gap_averages_out_the_samples_and_keeps_a_common_misfit():
     assert math.sqrt(sq / n) == pytest.approx(0.02 / math.sqrt(6), rel=1e-3)
 
 
+def _shifted_layer(contact_sd_mm, cycle_sd, level_sd, rng, n_samples=12, contact_noise=True):
+    """A layer context whose cycles are the homogeneous Ogden curve (mu 2000 Pa, alpha 5,
+    24 mm tall) read from a contact that is off by ``contact_sd_mm`` (normal, per cycle),
+    with a relative scale error per cycle and independent relative scatter per level."""
+    from types import SimpleNamespace
+
+    from calib.fit import CycleInfo, FitSettings, LayerData
+
+    levels = np.linspace(0.02, 0.30, 15)
+    height = 24.0
+    infos = tuple(CycleInfo(f"S{s}_t{t}.csv", f"S{s}", t, RATES[(s + t) % 3], 38.0, height)
+                  for s in range(n_samples) for t in (1, 2, 3))
+
+    def force(travel_mm):
+        lam = 1.0 - travel_mm / height
+        return 2000.0 * 1.13e-3 * 2.0 / 5.0 * (lam ** -3.5 - lam ** 4.0)
+
+    pred = np.tile(force(levels * height), (len(infos), 1))
+    shift = contact_sd_mm * rng.standard_normal((len(infos), 1))
+    y = (force(levels * height + shift) * (1 + cycle_sd * rng.standard_normal((len(infos), 1)))
+         * (1 + level_sd * rng.standard_normal(pred.shape)))
+    data = LayerData("L", infos, levels, y, np.zeros_like(y))
+    valid = data.valid
+    ctx = SimpleNamespace(y=y[valid], data=data, _w={},
+                          unit=SimpleNamespace(settings=FitSettings(contact_noise=contact_noise)),
+                          cycle=np.repeat(np.arange(len(infos)), len(levels)),
+                          level=np.tile(levels, len(infos)), travel=data.travel_mm[valid])
+    return ctx, pred[valid]
+
+
+@pytest.mark.parametrize("contact_um", [0.0, 5.0])
+def test_judging_noise_finds_the_scatter_of_the_contact_reading(contact_um):
+    """Cycles read from contacts scattered by 5 um (or not at all): the judging noise model
+    finds that scatter, and with it the whitened residuals of the first three levels (2-6 %
+    strain, where a shift of the travel moves the force most) have unit variance. Left out
+    (``FitSettings.contact_noise`` off, the default), the scatter counts as independent level
+    noise, too large for the high levels and too small for the low ones. Tolerances, from the
+    spread over 40 seeds: the contact scatter's estimate (22 degrees of freedom) 1.0 um at 5
+    um, allowed 2.25 um; at none, 0.3 +- 0.45 um, allowed below 1.5 um; the level scatter 2.6
+    %, allowed 10 %; the cycle scale, the intercept of a line in the slope, 19 % (and 7 %
+    low), allowed 40 %; the variance of 108 whitened points 0.14, allowed 0.35."""
+    from calib.discover import _structure_free_noise
+
+    def judged(contact_noise=True):
+        rng = np.random.default_rng(7)
+        ctx, pred = _shifted_layer(1e-3 * contact_um, 0.002, 0.003, rng,
+                                   contact_noise=contact_noise)
+        _structure_free_noise(ctx, pred, np.zeros((len(pred), 2)), np.zeros((2, 2)))
+        z = np.linalg.solve(np.linalg.cholesky(ctx.cov), ctx.y - pred)
+        return ctx.noise, float(np.var(z[ctx.level < 0.07]))
+
+    noise, low = judged()
+    if contact_um:
+        assert 1e3 * noise.contact_mm == pytest.approx(contact_um, abs=2.25)
+    else:
+        assert 1e3 * noise.contact_mm < 1.5
+    assert noise.level == pytest.approx(0.003, rel=0.1)
+    assert noise.cycle == pytest.approx(0.002, rel=0.4)
+    assert low == pytest.approx(1.0, abs=0.35)
+    if contact_um:
+        noise, low = judged(contact_noise=False)
+        assert noise.contact_mm == 0.0 and noise.level > 0.0033 and low > 1.5
+
+
+def test_contact_term_of_the_covariance_is_the_same_cycle_outer_product_of_the_slope():
+    """NumPy twin: contact^2 s_i s_j where points i and j are of one cycle, nothing else."""
+    from calib.fit import NoiseModel
+
+    rng = np.random.default_rng(2)
+    ctx, pred = _shifted_layer(0.0, 0.0, 0.003, rng, n_samples=2)
+    grid = np.full(ctx.data.valid.shape, np.nan)
+    grid[ctx.data.valid] = pred
+    slope = rng.uniform(0.1, 2.0, len(pred))
+    plain = NoiseModel(np.zeros((2, 2)), 0.01, 0.003)
+    with_contact = dataclasses.replace(plain, contact_mm=0.004)
+    added = (with_contact.covariance(ctx.data, grid, None, False, slope)
+             - plain.covariance(ctx.data, grid, None, False, slope))
+    same = ctx.cycle[:, None] == ctx.cycle[None, :]
+    np.testing.assert_allclose(added, 0.004 ** 2 * np.outer(slope, slope) * same,
+                               rtol=1e-12, atol=1e-18)
+    np.testing.assert_array_equal(plain.covariance(ctx.data, grid, None, False, slope),
+                                  plain.covariance(ctx.data, grid, None, False))
+
+
 class _ClosedFormUnit:
     """Unit forces (N/Pa) of the homogeneous incompressible Ogden closed form at fixed strains:
     a stand-in for the alpha surrogate with the same nonlinearity in alpha."""
@@ -480,13 +564,15 @@ def test_confusion_records_a_failed_run_and_goes_on(tmp_path, monkeypatch, capsy
     calls = []
 
     def run_one(scenario, seed, *args, **kwargs):
-        calls.append(scenario)
+        calls.append((scenario, kwargs["contact_noise"]))
         raise RuntimeError(f"Newton did not converge for {scenario}")
 
     monkeypatch.setattr(C, "run_one", run_one)
-    code = C.main(["--scenarios", "compressibility,contact_offset", "--out", str(tmp_path)])
-    assert code == 1 and calls == ["compressibility", "contact_offset"]
+    code = C.main(["--scenarios", "compressibility,contact_offset", "--contact-noise",
+                   "--out", str(tmp_path)])
+    assert code == 1 and calls == [("compressibility", True), ("contact_offset", True)]
     records = [json.loads(line) for line in (tmp_path / "runs.jsonl").read_text().splitlines()]
+    assert all(r["contact_noise"] and r["axial_ratio"] == 3.0 for r in records)
     assert [r["failed"] for r in records] == [
         "RuntimeError: Newton did not converge for compressibility",
         "RuntimeError: Newton did not converge for contact_offset"]
