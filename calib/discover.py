@@ -76,10 +76,11 @@ The workflow names the missing effect, adds it to the model, refits, and shows t
 After an effect is accepted (and for a candidate's held-out check), the noise model is
 re-estimated with it: the covariance of the samples' (ln mu, alpha) from fits of every sample
 alone with the extended model, the cycle and level scatter (and with
-``FitSettings.contact_noise`` the scatter of each cycle's contact reading) from its residuals. Held-out
-residuals are whitened with that scatter linearised about the layer's fit, along the extended
-model's sensitivities (see ``_sensitivities``). Effects tabulated at one alpha are tabulated again when the final
-refits move a layer's alpha by more than :data:`RETABULATE_ALPHA` from it.
+``FitSettings.contact_noise`` the scatter of each cycle's contact reading) from its residuals.
+Held-out residuals are whitened with that scatter linearised about the layer's fit, along the
+extended model's sensitivities (see ``_sensitivities``). Effects tabulated at one alpha are
+tabulated again when the final refits move a layer's alpha by more than
+:data:`RETABULATE_ALPHA` from it.
 """
 
 from __future__ import annotations

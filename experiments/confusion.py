@@ -12,7 +12,8 @@ decided with the current thresholds, and one JSON line per run is appended to
 that keep the false-positive rate at or below 5 %.
 
 ``--contact-noise`` judges with a per-cycle scatter of the contact reading in the noise model
-(``calib.fit.FitSettings.contact_noise``).
+(``calib.fit.FitSettings.contact_noise``); ``--max-level 0.22`` compares at the default levels
+up to 22 % strain only, below where the bulging side folds onto the platens.
 
 ``--truth-code felupe`` makes the campaigns' curves with FElupe instead of this project's
 solver (an independent code; scenarios without Prony terms or Coulomb platens), and a
@@ -39,15 +40,17 @@ from experiments.scenarios import SCENARIOS
 
 def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: float = 1.0,
             keep: Path | None = None, truth_code: str = "solver",
-            axial_ratio: float = 3.0, contact_noise: bool = False) -> dict:
+            axial_ratio: float = 3.0, contact_noise: bool = False,
+            max_level: float | None = None) -> dict:
     """Generate one campaign, run discovery with every candidate recorded, return a record.
 
     ``axial_ratio`` grades both the generating and the fitting meshes along the height;
-    ``contact_noise`` gives the judging noise model its contact-reading term (both
+    ``contact_noise`` gives the judging noise model its contact-reading term; ``max_level``
+    keeps the default comparison levels up to that strain (all three
     :class:`calib.fit.FitSettings`).
     """
     from calib.discover import THRESHOLDS, discover_campaign
-    from calib.fit import FitSettings
+    from calib.fit import DEFAULT_LEVELS, FitSettings
     from calib.loaders import load_campaign
     from experiments.generator import generate_campaign
 
@@ -60,7 +63,8 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
     campaign = load_campaign(folder)
     t_gen = time.perf_counter() - start
     # thresholds off: every plausible leading candidate gets its held-out check
-    settings = FitSettings(axial_ratio=axial_ratio, contact_noise=contact_noise)
+    levels = tuple(v for v in DEFAULT_LEVELS if max_level is None or v <= max_level + 1e-9)
+    settings = FitSettings(axial_ratio=axial_ratio, contact_noise=contact_noise, levels=levels)
     result = discover_campaign(campaign, settings=settings,
                                progress=False, log=lambda *a: None,
                                thresholds={"delta_bic_per_cycle": math.inf,
@@ -72,7 +76,7 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
     record = {
         "scenario": scenario, "seed": seed, "layers": layers, "fast": fast,
         "magnitude": magnitude, "truth_code": truth_code, "axial_ratio": axial_ratio,
-        "contact_noise": contact_noise,
+        "contact_noise": contact_noise, "levels": list(levels),
         "truth": truth["scenario"].get("parameters", {}),
         "candidates": candidates,
         "rms_before_N": result.rms_before_N, "rms_after_N": result.rms_after_N,
@@ -233,10 +237,15 @@ def main(argv=None) -> int:
     p.add_argument("--contact-noise", action="store_true",
                    help="judge with a per-cycle scatter of the contact reading in the noise "
                         "model (FitSettings.contact_noise)")
+    p.add_argument("--max-level", type=float, default=None,
+                   help="compare at the default levels up to this strain only (fraction)")
     p.add_argument("--out", required=True,
                    help="folder for runs.jsonl (with --summary, also a .jsonl file)")
     p.add_argument("--summary", action="store_true", help="only print the summary of OUT")
     args = p.parse_args(argv)
+    if args.max_level is not None and not 0.02 <= args.max_level < 0.9:
+        p.error(f"--max-level {args.max_level}: must be a strain from 0.02 (the first level) "
+                "to below 0.9")
     out = Path(args.out)
     log = out if args.summary and out.suffix == ".jsonl" else out / "runs.jsonl"
     if args.summary and not log.is_file():
@@ -259,12 +268,12 @@ def main(argv=None) -> int:
             try:
                 record = run_one(scenario, seed, layers, args.fast, magnitude,
                                  truth_code=args.truth_code, axial_ratio=args.axial_ratio,
-                                 contact_noise=args.contact_noise)
+                                 contact_noise=args.contact_noise, max_level=args.max_level)
             except Exception as exc:  # one run's failure must not lose the others
                 record = {"scenario": scenario, "seed": seed, "layers": layers,
                           "fast": args.fast, "magnitude": magnitude,
                           "truth_code": args.truth_code, "axial_ratio": args.axial_ratio,
-                          "contact_noise": args.contact_noise,
+                          "contact_noise": args.contact_noise, "max_level": args.max_level,
                           "failed": f"{type(exc).__name__}: {exc}"}
                 print(f"{scenario} seed {seed}: failed ({record['failed']})", file=sys.stderr,
                       flush=True)

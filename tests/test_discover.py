@@ -564,21 +564,26 @@ def test_confusion_records_a_failed_run_and_goes_on(tmp_path, monkeypatch, capsy
     calls = []
 
     def run_one(scenario, seed, *args, **kwargs):
-        calls.append((scenario, kwargs["contact_noise"]))
+        calls.append((scenario, kwargs["contact_noise"], kwargs["max_level"]))
         raise RuntimeError(f"Newton did not converge for {scenario}")
 
     monkeypatch.setattr(C, "run_one", run_one)
     code = C.main(["--scenarios", "compressibility,contact_offset", "--contact-noise",
-                   "--out", str(tmp_path)])
-    assert code == 1 and calls == [("compressibility", True), ("contact_offset", True)]
+                   "--max-level", "0.22", "--out", str(tmp_path)])
+    assert code == 1 and calls == [("compressibility", True, 0.22),
+                                   ("contact_offset", True, 0.22)]
     records = [json.loads(line) for line in (tmp_path / "runs.jsonl").read_text().splitlines()]
-    assert all(r["contact_noise"] and r["axial_ratio"] == 3.0 for r in records)
+    assert all(r["contact_noise"] and r["axial_ratio"] == 3.0 and r["max_level"] == 0.22
+               for r in records)
     assert [r["failed"] for r in records] == [
         "RuntimeError: Newton did not converge for compressibility",
         "RuntimeError: Newton did not converge for contact_offset"]
     out = capsys.readouterr()
     assert "compressibility seed 1: failed (RuntimeError" in out.err
     assert "runs that failed" in out.out and "contact_offset seed 1" in out.out
+    with pytest.raises(SystemExit):
+        C.main(["--max-level", "0.01", "--out", str(tmp_path)])
+    assert "--max-level 0.01" in capsys.readouterr().err
 
 
 def test_direct_check_needs_the_threshold_and_half_the_fast_gain(monkeypatch):
