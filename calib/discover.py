@@ -109,6 +109,7 @@ from .fit import (
     whitener,
 )
 from .loaders import contact_fit_bias
+from .splines import ShiftedSplines
 
 __all__ = ["EFFECTS", "Effect", "DiscoveryResult", "discover_campaign",
            "write_discovery_report", "THRESHOLDS"]
@@ -187,6 +188,7 @@ GRID_ALPHA_OFFSETS = (-1.0, 0.0, 2.0, 4.0)
 
 
 # ============================================================================ layer context
+
 class LayerContext:
     """What the fast refits of one layer need.
 
@@ -349,6 +351,8 @@ class LayerContext:
                             {g: [self.forward.curve(k) for k in ks] for g, ks in keys.items()},
                             {g: [self.unit.contact_shift(k) for k in ks]
                              for g, ks in keys.items()})
+        self._unit_rows = {g: ShiftedSplines(self.unit_curves[1][g], self.unit_curves[2][g])
+                           for g in keys}
 
     def unit_curve(self, g, weights: np.ndarray, travel) -> np.ndarray:
         """Unit force (N/Pa, fitting mesh) of geometry ``g`` at ``travel`` (mm).
@@ -361,8 +365,7 @@ class LayerContext:
 
     def unit_curve_rows(self, g, travel) -> np.ndarray:
         """:meth:`unit_curve` at each solved alpha, shape (n_alphas, n_travel)."""
-        return np.array([c(travel + shift) for c, shift in
-                         zip(self.unit_curves[1][g], self.unit_curves[2][g])])
+        return self._unit_rows[g](travel)
 
     def alpha_weights(self, alpha: float) -> np.ndarray:
         """Weights of the solved alphas at ``alpha`` for :meth:`unit_curve`.
@@ -630,13 +633,17 @@ class RateDependence(Effect):
         ctx.rate_table = table
 
     def modification(self, theta, ctx, mu, alpha):
-        gamma, log_tau = theta
-        out = np.empty(len(ctx.y))
-        for rate, spline in ctx.rate_table.items():
-            sel = ctx.rate_mask(rate)
-            h = spline(log_tau)[ctx.level_at_point[sel]]
-            out[sel] = np.log1p(gamma * h)
-        return out
+        gamma, log_tau = float(theta[0]), float(theta[1])
+
+        def compute():  # independent of mu and alpha: the same through a layer's refit
+            out = np.empty(len(ctx.y))
+            for rate, spline in ctx.rate_table.items():
+                sel = ctx.rate_mask(rate)
+                h = spline(log_tau)[ctx.level_at_point[sel]]
+                out[sel] = np.log1p(gamma * h)
+            return out
+
+        return ctx.memo((ctx.rate_table,), ("rate", gamma, log_tau), compute)
 
     def report(self, theta):
         gamma, log_tau = theta
