@@ -188,7 +188,6 @@ GRID_ALPHA_OFFSETS = (-1.0, 0.0, 2.0, 4.0)
 
 
 # ============================================================================ layer context
-
 class LayerContext:
     """What the fast refits of one layer need.
 
