@@ -12,6 +12,7 @@ Each subcommand is a pair of functions here, ``_add_<name>`` (its options) and `
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -688,15 +689,41 @@ def _add_discover(sub) -> None:
                    help="local processes for the base fits, the effect grids and the candidate "
                         "fits (default: one per core)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="a Dask scheduler to run on")
+    p.add_argument("--contact-noise", action="store_true",
+                   help="judge with each cycle's scatter of the contact reading in the noise "
+                        "model (off by default; see the README's limits)")
+    p.add_argument("--max-level", type=float, metavar="STRAIN",
+                   help="compare at the default strain levels up to this one only (fraction, "
+                        "e.g. 0.22: below where the bulging side folds onto the platens)")
+    p.add_argument("--axial-ratio", type=float, default=3.0, metavar="R",
+                   help="largest over smallest element height of the fitting mesh, graded "
+                        "towards the platens (default 3)")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.set_defaults(handler=_run_discover, residual="absolute")
+
+
+def _discover_settings(args):
+    """FitSettings of ``calib discover``: the fit's, its comparison levels and mesh grading."""
+    from .fit import DEFAULT_LEVELS
+
+    levels = DEFAULT_LEVELS
+    if args.max_level is not None:
+        if not (math.isfinite(args.max_level) and DEFAULT_LEVELS[0] <= args.max_level < 0.9):
+            raise UsageError(f"--max-level {args.max_level}: must be a strain (fraction) from "
+                             f"{DEFAULT_LEVELS[0]} (the first level) to below 0.9")
+        levels = tuple(v for v in DEFAULT_LEVELS if v <= args.max_level + 1e-9)
+    if not (math.isfinite(args.axial_ratio) and args.axial_ratio >= 1.0):
+        raise UsageError(f"--axial-ratio {args.axial_ratio}: must be a number >= 1 (largest "
+                         "over smallest element height)")
+    return dataclasses.replace(_fit_settings(args), levels=levels,
+                               axial_ratio=args.axial_ratio, contact_noise=args.contact_noise)
 
 
 def _run_discover(args) -> int:
     from .discover import EFFECTS, discover_campaign, write_discovery_report
 
+    settings = _discover_settings(args)
     campaign = _load_campaign_arg(args.data)
-    settings = _fit_settings(args)
     effects = _csv_list(args.effects, "effects") or list(EFFECTS)
     unknown = sorted(set(effects) - set(EFFECTS))
     if unknown:

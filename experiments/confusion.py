@@ -223,7 +223,10 @@ def summarise(records: list[dict]) -> str:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scenarios", default="all", help="comma-separated, or 'all'")
-    p.add_argument("--null", type=int, default=0, help="number of clean runs (seeds 1..N)")
+    p.add_argument("--null", type=int, default=0,
+                   help="number of clean runs (seeds FIRST..FIRST+N-1, see --first-seed)")
+    p.add_argument("--first-seed", type=int, default=1,
+                   help="seed of the first clean run (default 1), to add runs to a record")
     p.add_argument("--seeds", default="1", help="comma-separated seeds for the scenarios")
     p.add_argument("--layers", default="A,D", help="layers of each generated campaign")
     p.add_argument("--fast", action="store_true", help="generate on the fitting mesh")
@@ -255,7 +258,8 @@ def main(argv=None) -> int:
         layers = args.layers.split(",")
         jobs = []
         if args.null:
-            jobs += [("clean", seed) for seed in range(1, args.null + 1)]
+            jobs += [("clean", seed)
+                     for seed in range(args.first_seed, args.first_seed + args.null)]
         else:
             names = list(SCENARIOS) if args.scenarios == "all" else args.scenarios.split(",")
             seeds = [int(s) for s in args.seeds.split(",")]

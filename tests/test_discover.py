@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -417,6 +418,39 @@ def test_discover_cli_usage_errors(tmp_path, capsys):
     empty.mkdir()
     assert main(["discover", str(empty), "--out", str(tmp_path / "o")]) == 2
     assert "no readable cycle" in capsys.readouterr().err
+    for flag, value, reason in [("--max-level", "0.01", "must be a strain (fraction) from 0.02"),
+                                ("--max-level", "nan", "must be a strain"),
+                                ("--axial-ratio", "0.5", "must be a number >= 1")]:
+        assert main(["discover", str(empty), "--out", str(tmp_path / "o"), flag, value]) == 2
+        assert f"{flag} {value}: {reason}" in capsys.readouterr().err
+
+
+def test_discover_cli_passes_its_settings(tmp_path, monkeypatch):
+    """--contact-noise, --max-level and --axial-ratio reach the workflow's FitSettings (the
+    workflow itself replaced: it fails, so no report is written)."""
+    import calib.discover
+    from calib.cli import main
+    from calib.fit import DEFAULT_LEVELS
+
+    seen = {}
+
+    def fake(campaign, settings, **kw):
+        seen["settings"] = settings
+        raise ValueError("stopped here")
+
+    monkeypatch.setattr(calib.discover, "discover_campaign", fake)
+    data = tmp_path / "data"
+    shutil.copytree(Path(__file__).parents[1] / "experiments" / "campaign" / "A", data / "A")
+    args = ["discover", str(data), "--out", str(tmp_path / "o")]
+    assert main(args) == 1  # the workflow failed
+    default = seen["settings"]
+    assert default.levels == DEFAULT_LEVELS and not default.contact_noise
+    assert default.axial_ratio == 3.0
+    assert main(args + ["--contact-noise", "--max-level", "0.22", "--axial-ratio", "6"]) == 1
+    chosen = seen["settings"]
+    assert chosen.levels == DEFAULT_LEVELS[:11] and chosen.levels[-1] == 0.22
+    assert chosen.contact_noise and chosen.axial_ratio == 6.0
+    assert not (tmp_path / "o").exists()
 
 
 @pytest.fixture(scope="module")
@@ -584,6 +618,11 @@ def test_confusion_records_a_failed_run_and_goes_on(tmp_path, monkeypatch, capsy
     with pytest.raises(SystemExit):
         C.main(["--max-level", "0.01", "--out", str(tmp_path)])
     assert "--max-level 0.01" in capsys.readouterr().err
+    calls.clear()
+    C.main(["--null", "2", "--first-seed", "13", "--out", str(tmp_path / "more")])
+    records = [json.loads(line)
+               for line in (tmp_path / "more" / "runs.jsonl").read_text().splitlines()]
+    assert [r["seed"] for r in records] == [13, 14] and len(calls) == 2
 
 
 def test_direct_check_needs_the_threshold_and_half_the_fast_gain(monkeypatch):
