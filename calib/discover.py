@@ -366,6 +366,18 @@ class LayerContext:
         """:meth:`unit_curve` at each solved alpha, shape (n_alphas, n_travel)."""
         return self._unit_rows[g](travel)
 
+    def compliant_strain(self, g, weights: np.ndarray, strain, k_spring: float) -> np.ndarray:
+        """The sample's strain behind a series spring: s + k_spring f(s) = ``strain``.
+
+        f(s) = :meth:`unit_curve` at the sample's travel times :meth:`mesh_ratio` (the
+        discretisation correction at the sample's own strain); ``k_spring`` is the compliance
+        times mu over the height (1 / N per Pa of unit force). NaN where no equilibrium is
+        stable. One JIT kernel (:meth:`calib.splines.ShiftedSplines.spring_equilibrium`);
+        :func:`_compliant_strain` is its NumPy twin.
+        """
+        return self._unit_rows[g].spring_equilibrium(strain, weights, g[1], k_spring,
+                                                     *self.ratio_table)
+
     def alpha_weights(self, alpha: float) -> np.ndarray:
         """Weights of the solved alphas at ``alpha`` for :meth:`unit_curve`.
 
@@ -1139,7 +1151,7 @@ class MachineCompliance(_CurveReadingEffect):
                 q, table = reading
                 delta = w @ np.array([np.interp(theta[0] * mu, q, row) for row in table[g]])
                 read = strain + delta / h
-            s = _compliant_strain(read, f, mu, theta[0], h)
+            s = ctx.compliant_strain(g, w, read, theta[0] * mu / h)
             out[idx] = np.log(f(s) / f(strain))
         return out
 
