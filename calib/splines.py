@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from solver._jit import njit  # the solver's one JIT policy (cache, locking, error model)
+from solver.loading import table_interp
 
 __all__ = ["ShiftedSplines"]
 
@@ -64,31 +65,12 @@ def _shifted_cubic_rows(x, c, n_pieces, shifts, travel, out):
 
 
 @njit
-def _interp(t, grid, values):
-    """np.interp for one point: linear within ``grid`` (increasing), the end values beyond."""
-    n = grid.shape[0]
-    if t <= grid[0]:
-        return values[0]
-    if t >= grid[n - 1]:
-        return values[n - 1]
-    lo = 0
-    hi = n - 1
-    while hi - lo > 1:
-        mid = (lo + hi) // 2
-        if grid[mid] <= t:
-            lo = mid
-        else:
-            hi = mid
-    return values[lo] + (t - grid[lo]) * (values[hi] - values[lo]) / (grid[hi] - grid[lo])
-
-
-@njit
 def _weighted_force(x, c, n_pieces, shifts, weights, grid, ratio, height, s):
     """sum_k weights[k] spline_k(s height + shifts[k]) times interp(s, grid, ratio)."""
     total = 0.0
     for k in range(x.shape[0]):
         total += weights[k] * _piece(x, c, k, n_pieces[k] - 1, s * height + shifts[k])
-    return total * _interp(s, grid, ratio)
+    return total * table_interp(s, grid, ratio)
 
 
 @njit

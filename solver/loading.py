@@ -14,7 +14,7 @@ import numpy as np
 
 from ._jit import njit
 
-__all__ = ["CompressionTest", "PLATENS", "ramp_345", "travel"]
+__all__ = ["CompressionTest", "PLATENS", "ramp_345", "table_interp", "travel"]
 
 #: Platen conditions the solver knows.
 PLATENS = ("bonded", "frictionless", "coulomb")
@@ -153,18 +153,28 @@ def travel(t, kind, T, D, t_table, d_table):
             return 0.0
         s = t / T
         return D * s * s * s * (10.0 + s * (-15.0 + 6.0 * s))
-    n = t_table.shape[0]
-    if t <= t_table[0]:
-        return d_table[0]
-    if t >= t_table[n - 1]:
-        return d_table[n - 1]
+    return table_interp(t, t_table, d_table)
+
+
+@njit
+def table_interp(t, grid, values):
+    """``np.interp`` at one point ``t``.
+
+    Linear between the points of ``grid`` ((n,) float64, increasing), the end ``values``
+    ((n,) float64) beyond them; NaN at a NaN ``t``.
+    """
+    n = grid.shape[0]
+    if t <= grid[0]:
+        return values[0]
+    if t >= grid[n - 1]:
+        return values[n - 1]
     lo = 0
     hi = n - 1
     while hi - lo > 1:
         mid = (lo + hi) // 2
-        if t_table[mid] <= t:
+        if grid[mid] <= t:
             lo = mid
         else:
             hi = mid
-    w = (t - t_table[lo]) / (t_table[hi] - t_table[lo])
-    return d_table[lo] + w * (d_table[hi] - d_table[lo])
+    w = (t - grid[lo]) / (grid[hi] - grid[lo])
+    return values[lo] + w * (values[hi] - values[lo])

@@ -279,3 +279,19 @@ def test_every_solver_kernel_saves_its_cache_under_the_lock():
                 assert "_locked_cache" in obj._cache.save_overload.__qualname__, name
                 assert "_locked_cache" in obj._cache.load_overload.__qualname__, name
     assert found >= 20
+
+
+def test_table_interp_is_numpy_interp_at_one_point():
+    """The JIT piecewise-linear table (the constant-speed ramp's travel, the discrepancy
+    workflow's discretisation correction) against its twin, np.interp: inside, on the grid's
+    points, beyond both ends, NaN. 1e-15: the same two-point formula, written differently."""
+    from solver.loading import table_interp
+
+    rng = np.random.default_rng(3)
+    grid = np.sort(rng.uniform(0.0, 1.0, 40))
+    values = rng.normal(size=40)
+    t = np.concatenate([rng.uniform(-0.2, 1.2, 200), grid, [np.nan, -1e9, 1e9]])
+    got = np.array([table_interp(x, grid, values) for x in t])
+    twin = np.interp(t, grid, values)
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(twin))
+    np.testing.assert_allclose(got, twin, rtol=1e-15, atol=1e-15)
