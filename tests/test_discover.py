@@ -540,6 +540,43 @@ def test_candidates_fitted_in_worker_processes_equal_those_fitted_here(layer_a_c
         assert math.isfinite(chi1)
 
 
+def test_one_parameter_scan_looks_at_every_tabulated_value(monkeypatch):
+    """A one-parameter effect's coarse scan covers nine even steps and every tabulated value
+    in its box, and the polish stays between the scan's neighbours of its best point.
+
+    The chi-square here is a narrow well at friction 0.156 between the even steps 0.125 and
+    0.25, where it is high (the shape of the generated slip campaign's profile: 1076 at 0.125,
+    247 at 0.156, 1025 at 0.25, 482 bonded). Even steps alone never look into the well and
+    return to bonded; the scan at the tabulated 0.15 finds it and the polish its bottom.
+    """
+    import calib.discover as D
+
+    effect = make_effect("platen_slip")
+    grid = D._scan_grid(effect)
+    assert np.all(np.diff(grid) > 0)
+    assert set(np.linspace(0.0, 1.0, 9)) <= set(grid)
+    assert set(effect.values) <= set(grid)
+    np.testing.assert_array_equal(D._scan_grid(make_effect("contact_offset")),
+                                  np.linspace(*make_effect("contact_offset").bounds[0], 9))
+
+    def chi2(f):
+        if f >= 0.8:
+            return 482.0
+        well = 482.0 - 235.0 * max(0.0, 1.0 - abs(f - 0.156) / 0.02)
+        return min(well, 482.0) if abs(f - 0.156) < 0.02 else 1000.0 + 100.0 * f
+
+    def fake_fit(contexts, model, masks=None, warm=None):
+        return chi2(float(model.theta[-1][0])), {}
+
+    monkeypatch.setattr(D, "_campaign_fit", fake_fit)
+    model, fun = D._optimise([], D.Model([], []), effect)
+    assert model.theta[-1][0] == pytest.approx(0.156, abs=2e-3)
+    assert fun == pytest.approx(247.0, abs=2.0)
+    monkeypatch.setattr(D, "_scan_grid", lambda e: np.linspace(*e.bounds[0], 9))
+    model, fun = D._optimise([], D.Model([], []), effect)
+    assert fun == 482.0  # what the even steps alone find: bonded
+
+
 def test_confusion_replay_of_the_acceptance_rules():
     """experiments.confusion decides from round-1 records with discover's rules: the best
     passing candidate, and beside it any other passing one within max(10, 10 %) of its dBIC."""
