@@ -794,7 +794,7 @@ class PlatenSlip(_GridForwardEffect):
     null = (1.0,)
     values = np.array([0.0, 0.03, 0.06, 0.1, 0.15, 0.2, 0.3, 0.45, 1.0])
     reference = 1.0
-    mesh_values = (0.06, 0.15, 0.3, 0.45)
+    mesh_values = (0.0, 0.06, 0.15, 0.3, 0.45)
     # The Coulomb curves no longer depend on the ramp (the
     # solver's bulk viscosity), and up to 20 % strain the fitting mesh's agree with a 40 x 50
     # mesh's to 0.02 %; beyond, the rim folding onto the platen node by node moves them by
@@ -812,9 +812,11 @@ class PlatenSlip(_GridForwardEffect):
     # generating mesh's curve was -0.23 to -0.43 % from 2 to 18 %). Without its correction the
     # candidate was worse than bonded at the truth and returned to bonded, at every level set.
     # So the correction is tabulated up front (a 28 x 36 Coulomb solve, about 6 s, at each of
-    # four frictions and four alphas). On the generated slip campaign (friction 0.15, layers A
-    # and D, seed 1) the chi-square over friction then has its minimum at 0.156 (levels to 30
-    # %; 0.143 to 22 %), 247 against bonded's 482. It is not smooth (the stick-slip decisions
+    # four frictions and four alphas; a frictionless one too, 0.4 s: extrapolated to it from
+    # 0.06, FElupe-made frictionless data were named contact_offset, slip not even beside
+    # it). On the generated slip campaign (friction 0.15, layers A and D, seed 1) the
+    # chi-square over friction then has its minimum at 0.156 (levels to 30 %; 0.143 to 22
+    # %), 247 against bonded's 482. It is not smooth (the stick-slip decisions
     # of the folding rim: 1002 at 0.25, 1433 at 0.2), hence the scan at the tabulated values.
     # Tabulated at four alphas (as compressibility): wholly unbonded platens lower the base
     # fit's alpha by about one (5 -> 4 on FElupe-made frictionless data), and tabulated at
