@@ -1550,13 +1550,13 @@ def _scan_grid(effect: Effect) -> np.ndarray:
     """Coarse scan of a one-parameter effect's box, sorted.
 
     Nine even steps over the box and, for an effect tabulated on FE solves, every tabulated
-    value in it. Where the force changes shape with the parameter, the fit's chi-square need not be
-    smooth between the even steps. The Coulomb curves do: at friction 0.15 the fitting
-    mesh's force is the bonded one's times 0.79 to within 0.4 % up to 22 % strain, at 0.45
-    it is 3 to 7 % below it, most at 20 %. On the generated slip campaign
-    (layers A and D, seed 1, levels to 22 %) the chi-square was 203 at friction 0.125, 1002 at
-    0.25 and 169 bonded, so a scan of even steps never looked at the truth, 0.15, and the
-    polish about its best step returned to bonded.
+    value in it. Where the force changes shape with the parameter, the fit's chi-square need
+    not be smooth between the even steps. The Coulomb curves change shape: at friction 0.15 the
+    fitting mesh's force is the bonded one's times 0.79 to within 0.4 % up to 22 % strain, at
+    0.45 it is 3 to 7 % below it, most at 20 %. On the generated slip campaign (layers A and D,
+    seed 1, levels to 22 %) the chi-square was 203 at friction 0.125, 1002 at 0.25 and 169
+    bonded, so a scan of even steps never looked at the truth, 0.15, and the polish about its
+    best step returned to bonded.
     """
     (lo, hi), = effect.bounds
     tabulated = np.asarray(getattr(effect, "values", ()), dtype=float)
