@@ -540,6 +540,20 @@ def test_candidates_fitted_in_worker_processes_equal_those_fitted_here(layer_a_c
         assert math.isfinite(chi1)
 
 
+@pytest.mark.parametrize("name", [n for n in EFFECTS
+                                  if getattr(make_effect(n), "mesh_values", ())])
+def test_up_front_mesh_correction_spans_the_effect_table(name):
+    """The correction is a PCHIP over the values it was solved at: beyond them it extrapolates.
+
+    Solved from friction 0.06 only, the correction extrapolated to frictionless platens named
+    FElupe-made frictionless data contact_offset, without slip beside it.
+    """
+    effect = make_effect(name)
+    solved = sorted(set(effect.mesh_values) | {effect.reference})
+    assert solved[0] <= min(effect.values), (solved, effect.values)
+    assert solved[-1] >= max(effect.values), (solved, effect.values)
+
+
 def test_one_parameter_scan_looks_at_every_tabulated_value(monkeypatch):
     """A one-parameter effect's coarse scan covers nine even steps and every tabulated value
     in its box, and the polish stays between the scan's neighbours of its best point.
