@@ -89,6 +89,7 @@ import contextlib
 import copy
 import dataclasses
 import math
+import os
 import time
 from collections.abc import Sequence
 from typing import NamedTuple
@@ -185,6 +186,19 @@ REFINE_PASSES = 3
 #: Alphas (offsets from the base fit's) at which compressibility and the observation effects
 #: that move a level along the curve are tabulated (cubic interpolation between them).
 GRID_ALPHA_OFFSETS = (-1.0, 0.0, 2.0, 4.0)
+#: Spacing of the campaign-wide alpha lattice on which an expensive up-front discretisation
+#: correction (platen slip's: sixteen 6 s Coulomb solves per layer on its own alphas) is
+#: solved once for all layers, in parallel, and splined in alpha (see
+#: :meth:`_GridForwardEffect.mesh_alphas`). One unit is finer than the grids' own spacing
+#: (1 and 2 about the base alpha), which the correction needs: at 30 % strain and friction
+#: 0.15 it goes -0.64, -1.24, -2.06, -0.69 % for alpha 3, 4, 6, 8.
+MESH_ALPHA_STEP = 1.0
+#: A layer whose median diameter and height are within this fraction of the campaign's
+#: median takes the correction solved on the campaign's median geometry (else its own is
+#: solved). Slip's correction at friction 0.15 and 0 on 37.7 x 23.9, 38 x 23.9 and 38.2 x
+#: 24.1 mm differs from that on 38 x 24 mm by at most 0.06 % of the force at any level, a
+#: twentieth of the correction there and a fifth of a clean campaign's systematic gap.
+MESH_GEOMETRY_TOLERANCE = 0.01
 
 
 # ============================================================================ layer context
@@ -707,6 +721,50 @@ class _GridForwardEffect(Effect):
     #: tabulate on every sample geometry of the layer rather than on its median one (at the
     #: base alpha; the other alphas carry each geometry's difference from the median there)
     per_geometry = False
+    #: solve the up-front discretisation correction on the campaign-wide lattice of alphas
+    #: (:data:`MESH_ALPHA_STEP`) and the campaign's median geometry, once for all layers,
+    #: rather than at each layer's own grid alphas and geometry
+    mesh_shared = False
+
+    def mesh_alphas(self, ctx) -> list:
+        """Alphas at which the layer's up-front discretisation correction is solved.
+
+        The grid's alphas, or with :attr:`mesh_shared` the lattice points of spacing
+        :data:`MESH_ALPHA_STEP` that enclose them (the same points for every layer near
+        the same alphas, so that their solves are shared).
+        """
+        alphas = ctx.grid_alphas(self.alpha_offsets)
+        if not self.mesh_shared:
+            return alphas
+        step = MESH_ALPHA_STEP
+        lo = max(1, math.floor(alphas[0] / step + 1e-9))
+        hi = max(lo, math.ceil(alphas[-1] / step - 1e-9))
+        return [round(k * step, 9) for k in range(lo, hi + 1)]
+
+    def mesh_table(self, ctx, shared: dict | None = None) -> tuple:
+        """Solve the up-front discretisation correction: (alphas, per-alpha PCHIPs, basis).
+
+        Each alpha's rows are taken from ``shared`` (see :func:`_shared_mesh_key`) where
+        present, else solved here. ``basis`` is the spline in alpha of the lattice
+        (:attr:`mesh_shared`), ``None`` for Lagrange interpolation across the grid's alphas.
+        """
+        values = sorted(set(self.mesh_values) | {self.reference})
+        geometry = ctx.geometry
+        if self.mesh_shared:
+            geometry = getattr(ctx, "mesh_geometry", None) or geometry
+        alphas = self.mesh_alphas(ctx)
+        per_alpha = []
+        for a in alphas:
+            key = _shared_mesh_key(self, a, geometry, ctx.data.levels)
+            rows = (shared or {}).get(key)
+            if rows is None:
+                rows = _mesh_rows(ctx.forward, ctx.unit.settings, self, a, geometry,
+                                  ctx.data.levels)
+            per_alpha.append(interpolate.PchipInterpolator(values, rows, axis=0))
+        basis = None
+        if self.mesh_shared and len(alphas) > 1:
+            basis = interpolate.CubicSpline(alphas, np.eye(len(alphas)), axis=0)
+        return np.array(alphas), per_alpha, basis
 
     def overrides(self, value: float) -> dict:
         raise NotImplementedError
@@ -736,14 +794,8 @@ class _GridForwardEffect(Effect):
         if self.mesh_values and ctx.unit.settings.mesh_correction:
             # at every grid alpha too: the correction moves with alpha as much as the effect's
             # residual shape (nu = 0.42 at 25 %: +0.42 % at alpha 3.1, -0.70 % at alpha 6)
-            values = sorted(set(self.mesh_values) | {self.reference})
-            per_alpha = []
-            for a in alphas:
-                rows = [np.zeros(len(ctx.data.levels)) if v == self.reference else
-                        ctx.mesh_delta_at_levels(ctx.base_key(a, **self.overrides(float(v))), a)
-                        for v in values]
-                per_alpha.append(interpolate.PchipInterpolator(values, np.array(rows), axis=0))
-            setattr(ctx, f"{self.name}_mesh_table", (np.array(alphas), per_alpha))
+            setattr(ctx, f"{self.name}_mesh_table",
+                    self.mesh_table(ctx, getattr(ctx, "shared_mesh", None)))
 
     def alpha_span(self, ctx):
         nodes = getattr(ctx, f"{self.name}_table")[0]
@@ -779,10 +831,14 @@ class _GridForwardEffect(Effect):
         mesh = getattr(ctx, f"{self.name}_mesh_table", None)
         if mesh is None:
             return 0.0
-        nodes, per_alpha = mesh
+        nodes, per_alpha, basis = mesh
         rows = ctx.memo((mesh,), ("mesh", float(value)),
                         lambda: np.array([t(value) for t in per_alpha]))
-        return _lagrange(nodes, alpha) @ rows
+        if basis is None:
+            return _lagrange(nodes, alpha) @ rows
+        # the lattice's spline, held within half a unit beyond it (as :func:`_lagrange`)
+        x = min(nodes[-1] + 0.5, max(nodes[0] - 0.5, float(alpha)))
+        return basis(x) @ rows
 
 
 class PlatenSlip(_GridForwardEffect):
@@ -795,6 +851,7 @@ class PlatenSlip(_GridForwardEffect):
     values = np.array([0.0, 0.03, 0.06, 0.1, 0.15, 0.2, 0.3, 0.45, 1.0])
     reference = 1.0
     mesh_values = (0.0, 0.06, 0.15, 0.3, 0.45)
+    mesh_shared = True
     # The Coulomb curves no longer depend on the ramp (the
     # solver's bulk viscosity), and up to 20 % strain the fitting mesh's agree with a 40 x 50
     # mesh's to 0.02 %; beyond, the rim folding onto the platen node by node moves them by
@@ -812,9 +869,11 @@ class PlatenSlip(_GridForwardEffect):
     # generating mesh's curve was -0.23 to -0.43 % from 2 to 18 %). Without its correction the
     # candidate was worse than bonded at the truth and returned to bonded, at every level set.
     # So the correction is tabulated up front (a 28 x 36 Coulomb solve, about 6 s, at each of
-    # four frictions and four alphas; a frictionless one too, 0.4 s: extrapolated to it from
-    # 0.06, FElupe-made frictionless data were named contact_offset, slip not even beside
-    # it). On the generated slip campaign (friction 0.15, layers A and D, seed 1) the
+    # four frictions; a frictionless one too, 0.4 s: extrapolated to it from 0.06,
+    # FElupe-made frictionless data were named contact_offset, slip not even beside it), at
+    # the alphas of the campaign-wide lattice (MESH_ALPHA_STEP) on the campaign's median
+    # geometry, solved once for all layers: at each layer's own four grid alphas it was
+    # sixteen such solves per layer, most of a six-layer discovery's time. On the generated slip campaign (friction 0.15, layers A and D, seed 1) the
     # chi-square over friction then has its minimum at 0.156 (levels to 30 %; 0.143 to 22
     # %), 247 against bonded's 482. It is not smooth (the stick-slip decisions
     # of the folding rim: 1002 at 0.25, 1433 at 0.2), hence the scan at the tabulated values.
@@ -2048,8 +2107,111 @@ class DiscoveryResult:
         }
 
 
+def _shared_mesh_key(effect: Effect, alpha: float, geometry, levels) -> tuple:
+    """What an up-front discretisation correction's rows at one alpha depend on."""
+    return (effect.name, round(float(alpha), 9), tuple(map(float, geometry)),
+            tuple(np.round(np.asarray(levels, dtype=float), 9)))
+
+
+def _mesh_rows(forward: ForwardModel, settings: FitSettings, effect: Effect, alpha: float,
+               geometry, levels) -> np.ndarray:
+    """An effect's up-front discretisation correction at one alpha, (n_values, n_levels).
+
+    For each of the effect's ``mesh_values`` and its reference (sorted): ln(finer / fitting
+    mesh force) of the effect's solve minus the base model's, at the strain ``levels`` of the
+    ``geometry`` (diameter, height in mm); 0 at the reference.
+    """
+    d, h = geometry
+    base = CurveKey(alpha=(float(alpha),), diameter_mm=float(d), height_mm=float(h),
+                    nu=settings.nu, platen=settings.platen)
+    travel = np.asarray(levels, dtype=float) * base.height_mm
+    scale = settings.mesh_correction
+
+    def ratio(key):
+        return np.log(forward.curve(key, scale)(travel) / forward.curve(key)(travel))
+
+    values = sorted(set(effect.mesh_values) | {effect.reference})
+    return np.array([np.zeros(len(travel)) if v == effect.reference else
+                     ratio(dataclasses.replace(base, **effect.overrides(float(v)))) - ratio(base)
+                     for v in values])
+
+
+def _mesh_rows_job(settings: FitSettings, name: str, alpha: float, geometry, levels):
+    """Work item: :func:`_mesh_rows` of one effect at one alpha; (key, rows, n_solves)."""
+    forward = ForwardModel.for_settings(settings)
+    effect = make_effect(name)
+    rows = _mesh_rows(forward, settings, effect, alpha, geometry, levels)
+    return _shared_mesh_key(effect, alpha, geometry, levels), rows, forward.n_solves
+
+
+def _campaign_geometry(contexts) -> tuple[float, float] | None:
+    """Median (diameter, height) in mm of every cycle of the layers, or None without any."""
+    sizes = [(c.diameter_mm, c.height_mm) for ctx in contexts for c in ctx.data.cycles]
+    if not sizes:
+        return None
+    return tuple(float(x) for x in np.median(np.array(sizes), axis=0))
+
+
+def _solve_shared_mesh(contexts, settings, names, alphas, pool, progress) -> int:
+    """Solve the campaign-wide discretisation corrections the layers' next grids need.
+
+    For the effects of ``names`` with ``mesh_shared``: each layer near the campaign's median
+    geometry (:data:`MESH_GEOMETRY_TOLERANCE`) is pointed at it (``mesh_geometry``), and
+    every lattice alpha any layer needs and no earlier call solved is solved, one work item
+    per alpha, into the dict ``shared_mesh`` all the contexts hold. Returns the solves.
+    """
+    import concurrent.futures as cf
+
+    effects = [e for e in map(make_effect, names)
+               if getattr(e, "mesh_shared", False) and e.mesh_values]
+    if not effects or not settings.mesh_correction:
+        return 0
+    shared = next((c.shared_mesh for c in contexts if hasattr(c, "shared_mesh")), {})
+    campaign = _campaign_geometry(contexts)
+    todo = {}
+    for ctx in contexts:
+        ctx.shared_mesh = shared
+        near = campaign is not None and all(
+            abs(x - y) <= MESH_GEOMETRY_TOLERANCE * y for x, y in zip(ctx.geometry, campaign))
+        ctx.mesh_geometry = campaign if near else None
+        if not near:
+            continue  # its own geometry: solved in its layer's job
+        saved = ctx.alpha_ref
+        if alphas is not None:
+            ctx.alpha_ref = alphas[ctx.layer]
+        try:
+            for effect in effects:
+                for a in effect.mesh_alphas(ctx):
+                    key = _shared_mesh_key(effect, a, campaign, ctx.data.levels)
+                    if key not in shared:
+                        todo[key] = (effect.name, a, campaign, tuple(ctx.data.levels))
+        finally:
+            ctx.alpha_ref = saved
+    if not todo:
+        return 0
+    futures = [pool.submit(_mesh_rows_job, settings, *job) for job in todo.values()]
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        names_ = ", ".join(e.name for e in effects)
+        bar = tqdm(total=len(futures), desc=f"discover: {names_} mesh correction"[:60],
+                   unit="alpha")
+    n_solves = 0
+    for future in cf.as_completed(futures):
+        key, rows, n = future.result()
+        shared[key] = rows
+        n_solves += n
+        if bar is not None:
+            bar.update(1)
+    if bar is not None:
+        bar.close()
+    return n_solves
+
+
 def _prepare_job(fit: LayerFit, settings: FitSettings, names: Sequence[str],
-                 alpha_ref: float | None = None, theta=None, mesh_delta=None):
+                 alpha_ref: float | None = None, theta=None, mesh_delta=None,
+                 shared_mesh=None, mesh_geometry=None):
     """Work item: the effect grids of one layer (FE solves), returned as plain attributes.
 
     With ``theta`` (one effect's parameters, on refinement) also the effect's discretisation
@@ -2060,6 +2222,8 @@ def _prepare_job(fit: LayerFit, settings: FitSettings, names: Sequence[str],
     ctx = LayerContext(fit, forward, settings)
     if alpha_ref is not None:
         ctx.alpha_ref = alpha_ref
+    ctx.shared_mesh = shared_mesh or {}
+    ctx.mesh_geometry = mesh_geometry
     before = set(vars(ctx)) - {"alpha_ref"}
     for name in names:
         make_effect(name).prepare(ctx)
@@ -2089,10 +2253,27 @@ def _prepare(contexts, settings, names, alphas, workers, scheduler, progress,
 
     n_solves = 0
     by_layer = {ctx.layer: ctx for ctx in contexts}
-    with executor(len(contexts), max_workers=workers, scheduler=scheduler) as pool:
+    # the shared corrections' work items are an alpha each, not a layer: with them even a
+    # single layer's grids fan out
+    shares = (theta is None and settings.mesh_correction
+              and any(getattr(make_effect(n), "mesh_shared", False) for n in names))
+    n_items = max(len(contexts), os.cpu_count() or 1) if shares else len(contexts)
+    with executor(n_items, max_workers=workers, scheduler=scheduler) as pool:
+        if theta is None:
+            n_solves += _solve_shared_mesh(contexts, settings, names, alphas, pool, progress)
+
+        def mesh_of(ctx):  # the shared rows this layer's grids read
+            shared = getattr(ctx, "shared_mesh", None) or {}
+            geometry = getattr(ctx, "mesh_geometry", None)
+            if geometry is None:
+                return None
+            return {k: v for k, v in shared.items()
+                    if k[0] in names and k[2] == tuple(geometry)}
+
         futures = [pool.submit(_prepare_job, ctx.fit, settings, list(names),
                                None if alphas is None else alphas[ctx.layer], theta,
-                               getattr(ctx, "mesh_delta", None))
+                               getattr(ctx, "mesh_delta", None), mesh_of(ctx),
+                               getattr(ctx, "mesh_geometry", None))
                    for ctx in contexts]
         bar = None
         if progress:

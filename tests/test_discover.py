@@ -540,6 +540,67 @@ def test_candidates_fitted_in_worker_processes_equal_those_fitted_here(layer_a_c
         assert math.isfinite(chi1)
 
 
+def test_shared_mesh_correction_is_solved_once_per_lattice_alpha(layer_a_context,
+                                                                 monkeypatch):
+    """Platen slip's up-front correction is solved once per alpha of the campaign's lattice
+    for every layer near the campaign's median geometry, and splined in alpha; a layer off
+    that geometry solves its own.
+
+    The rows are made a cubic in alpha (which the not-a-knot spline reproduces exactly) so
+    that the interpolation between lattice alphas is checked too.
+    """
+    import copy
+
+    import calib.discover as D
+    from calib.parallel import SerialExecutor
+
+    calls = []
+
+    def fake(forward, settings, effect, alpha, geometry, levels):
+        calls.append((round(alpha, 9), tuple(geometry)))
+        values = np.array(sorted(set(effect.mesh_values) | {effect.reference}))
+        shape = 1e-3 * (alpha ** 3 - 2.0 * alpha) * (1.0 + geometry[0] / 100.0)
+        return np.outer(1.0 - values, np.asarray(levels)) * shape
+
+    monkeypatch.setattr(D, "_mesh_rows", fake)
+    layers = []
+    for name, alpha in (("A", 3.3), ("B", 4.6), ("C", 4.0)):
+        ctx = copy.copy(layer_a_context)
+        ctx.layer, ctx.alpha_ref = name, alpha
+        for attr in ("shared_mesh", "mesh_geometry"):
+            ctx.__dict__.pop(attr, None)
+        layers.append(ctx)
+    layers[2].geometry = (40.0, 24.0)  # 5 % wider than the campaign's median
+    effect = make_effect("platen_slip")
+    assert effect.mesh_shared
+    settings = layers[0].unit.settings
+    D._solve_shared_mesh(layers, settings, ["platen_slip"], None, SerialExecutor(), False)
+    campaign = D._campaign_geometry(layers)
+    assert layers[0].mesh_geometry == layers[1].mesh_geometry == campaign
+    assert layers[2].mesh_geometry is None
+    lattice = sorted({a for ctx in layers[:2] for a in effect.mesh_alphas(ctx)})
+    assert lattice == [float(k) for k in range(int(lattice[0]), int(lattice[-1]) + 1)]
+    for ctx in layers[:2]:  # the lattice encloses the layer's grid
+        grid = ctx.grid_alphas(effect.alpha_offsets)
+        nodes = effect.mesh_alphas(ctx)
+        assert nodes[0] <= grid[0] < nodes[0] + 1 and nodes[-1] - 1 < grid[-1] <= nodes[-1]
+    assert sorted(calls) == [(a, campaign) for a in lattice]  # each once, on the median
+    calls.clear()
+    for ctx in layers:
+        table = effect.mesh_table(ctx, ctx.shared_mesh)
+        ctx.platen_slip_mesh_table = table
+    own = effect.mesh_alphas(layers[2])
+    assert calls == [(a, (40.0, 24.0)) for a in own]  # only the layer off the median
+    levels = np.asarray(layers[0].data.levels)
+    for ctx, geometry in ((layers[0], campaign), (layers[1], campaign),
+                          (layers[2], (40.0, 24.0))):
+        for alpha in (ctx.alpha_ref, ctx.alpha_ref + 1.37):
+            expected = (1e-3 * (alpha ** 3 - 2.0 * alpha) * (1.0 + geometry[0] / 100.0)
+                        * (1.0 - 0.15) * levels)
+            np.testing.assert_allclose(effect.mesh_shift(ctx, 0.15, alpha), expected,
+                                       rtol=1e-9, atol=1e-15)
+
+
 @pytest.mark.parametrize("name", [n for n in EFFECTS
                                   if getattr(make_effect(n), "mesh_values", ())])
 def test_up_front_mesh_correction_spans_the_effect_table(name):
