@@ -873,7 +873,8 @@ class PlatenSlip(_GridForwardEffect):
     # FElupe-made frictionless data were named contact_offset, slip not even beside it), at
     # the alphas of the campaign-wide lattice (MESH_ALPHA_STEP) on the campaign's median
     # geometry, solved once for all layers: at each layer's own four grid alphas it was
-    # sixteen such solves per layer, most of a six-layer discovery's time. On the generated slip campaign (friction 0.15, layers A and D, seed 1) the
+    # sixteen such solves per layer, most of a six-layer discovery's time. On the generated
+    # slip campaign (friction 0.15, layers A and D, seed 1) the
     # chi-square over friction then has its minimum at 0.156 (levels to 30 %; 0.143 to 22
     # %), 247 against bonded's 482. It is not smooth (the stick-slip decisions
     # of the folding rim: 1002 at 0.25, 1433 at 0.2), hence the scan at the tabulated values.
