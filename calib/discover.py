@@ -89,7 +89,6 @@ import contextlib
 import copy
 import dataclasses
 import math
-import os
 import time
 from collections.abc import Sequence
 from typing import NamedTuple
@@ -729,29 +728,34 @@ class _GridForwardEffect(Effect):
     def mesh_alphas(self, ctx) -> list:
         """Alphas at which the layer's up-front discretisation correction is solved.
 
-        The grid's alphas, or with :attr:`mesh_shared` the lattice points of spacing
+        The grid's alphas, or for a layer pointed at the campaign's geometry
+        (``mesh_geometry``, see :func:`_solve_shared_mesh`) the lattice points of spacing
         :data:`MESH_ALPHA_STEP` that enclose them (the same points for every layer near
         the same alphas, so that their solves are shared).
         """
         alphas = ctx.grid_alphas(self.alpha_offsets)
-        if not self.mesh_shared:
+        if not self._shares(ctx):
             return alphas
         step = MESH_ALPHA_STEP
         lo = max(1, math.floor(alphas[0] / step + 1e-9))
         hi = max(lo, math.ceil(alphas[-1] / step - 1e-9))
         return [round(k * step, 9) for k in range(lo, hi + 1)]
 
+    def _shares(self, ctx) -> bool:
+        """Whether the layer's up-front correction comes from the campaign's lattice."""
+        return self.mesh_shared and getattr(ctx, "mesh_geometry", None) is not None
+
     def mesh_table(self, ctx, shared: dict | None = None) -> tuple:
         """Solve the up-front discretisation correction: (alphas, per-alpha PCHIPs, basis).
 
         Each alpha's rows are taken from ``shared`` (see :func:`_shared_mesh_key`) where
-        present, else solved here. ``basis`` is the spline in alpha of the lattice
-        (:attr:`mesh_shared`), ``None`` for Lagrange interpolation across the grid's alphas.
+        present, else solved here. ``basis`` is the spline in alpha of the campaign's lattice
+        (see :meth:`mesh_alphas`), ``None`` for Lagrange interpolation across the layer's
+        own grid alphas (on its own median geometry).
         """
         values = sorted(set(self.mesh_values) | {self.reference})
-        geometry = ctx.geometry
-        if self.mesh_shared:
-            geometry = getattr(ctx, "mesh_geometry", None) or geometry
+        shares = self._shares(ctx)
+        geometry = ctx.mesh_geometry if shares else ctx.geometry
         alphas = self.mesh_alphas(ctx)
         per_alpha = []
         for a in alphas:
@@ -762,7 +766,7 @@ class _GridForwardEffect(Effect):
                                   ctx.data.levels)
             per_alpha.append(interpolate.PchipInterpolator(values, rows, axis=0))
         basis = None
-        if self.mesh_shared and len(alphas) > 1:
+        if shares and len(alphas) > 1:
             basis = interpolate.CubicSpline(alphas, np.eye(len(alphas)), axis=0)
         return np.array(alphas), per_alpha, basis
 
@@ -2163,15 +2167,49 @@ def _solve_shared_mesh(contexts, settings, names, alphas, pool, progress) -> int
     """
     import concurrent.futures as cf
 
+    todo = _plan_shared_mesh(contexts, settings, names, alphas)
+    if not todo:
+        return 0
+    shared = contexts[0].shared_mesh
+    futures = [pool.submit(_mesh_rows_job, settings, *job) for job in todo.values()]
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        what = ", ".join(sorted({job[0] for job in todo.values()}))
+        bar = tqdm(total=len(futures), desc=f"discover: {what} mesh correction"[:60],
+                   unit="alpha")
+    n_solves = 0
+    for future in cf.as_completed(futures):
+        key, rows, n = future.result()
+        shared[key] = rows
+        n_solves += n
+        if bar is not None:
+            bar.update(1)
+    if bar is not None:
+        bar.close()
+    return n_solves
+
+
+def _plan_shared_mesh(contexts, settings, names, alphas) -> dict:
+    """The campaign-wide correction solves the next grids need: key -> job arguments.
+
+    Points every context at the dict ``shared_mesh`` they all hold and, if near the
+    campaign's median geometry, at that geometry (``mesh_geometry``; else None).
+    """
     effects = [e for e in map(make_effect, names)
                if getattr(e, "mesh_shared", False) and e.mesh_values]
     if not effects or not settings.mesh_correction:
-        return 0
+        return {}
     shared = next((c.shared_mesh for c in contexts if hasattr(c, "shared_mesh")), {})
-    campaign = _campaign_geometry(contexts)
+    # the first call's, over every layer (later ones may be given the moved layers only)
+    campaign = next((c.campaign_geometry for c in contexts
+                     if getattr(c, "campaign_geometry", None) is not None), None)
+    campaign = campaign or _campaign_geometry(contexts)
     todo = {}
     for ctx in contexts:
         ctx.shared_mesh = shared
+        ctx.campaign_geometry = campaign
         near = campaign is not None and all(
             abs(x - y) <= MESH_GEOMETRY_TOLERANCE * y for x, y in zip(ctx.geometry, campaign))
         ctx.mesh_geometry = campaign if near else None
@@ -2188,26 +2226,7 @@ def _solve_shared_mesh(contexts, settings, names, alphas, pool, progress) -> int
                         todo[key] = (effect.name, a, campaign, tuple(ctx.data.levels))
         finally:
             ctx.alpha_ref = saved
-    if not todo:
-        return 0
-    futures = [pool.submit(_mesh_rows_job, settings, *job) for job in todo.values()]
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-
-        names_ = ", ".join(e.name for e in effects)
-        bar = tqdm(total=len(futures), desc=f"discover: {names_} mesh correction"[:60],
-                   unit="alpha")
-    n_solves = 0
-    for future in cf.as_completed(futures):
-        key, rows, n = future.result()
-        shared[key] = rows
-        n_solves += n
-        if bar is not None:
-            bar.update(1)
-    if bar is not None:
-        bar.close()
-    return n_solves
+    return todo
 
 
 def _prepare_job(fit: LayerFit, settings: FitSettings, names: Sequence[str],
@@ -2256,11 +2275,10 @@ def _prepare(contexts, settings, names, alphas, workers, scheduler, progress,
     by_layer = {ctx.layer: ctx for ctx in contexts}
     # the shared corrections' work items are an alpha each, not a layer: with them even a
     # single layer's grids fan out
-    shares = (theta is None and settings.mesh_correction
-              and any(getattr(make_effect(n), "mesh_shared", False) for n in names))
-    n_items = max(len(contexts), os.cpu_count() or 1) if shares else len(contexts)
-    with executor(n_items, max_workers=workers, scheduler=scheduler) as pool:
-        if theta is None:
+    todo = _plan_shared_mesh(contexts, settings, names, alphas) if theta is None else {}
+    with executor(max(len(contexts), len(todo)), max_workers=workers,
+                  scheduler=scheduler) as pool:
+        if todo:
             n_solves += _solve_shared_mesh(contexts, settings, names, alphas, pool, progress)
 
         def mesh_of(ctx):  # the shared rows this layer's grids read

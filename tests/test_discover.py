@@ -544,7 +544,7 @@ def test_shared_mesh_correction_is_solved_once_per_lattice_alpha(layer_a_context
                                                                  monkeypatch):
     """Platen slip's up-front correction is solved once per alpha of the campaign's lattice
     for every layer near the campaign's median geometry, and splined in alpha; a layer off
-    that geometry solves its own.
+    that geometry solves its own at its own grid alphas.
 
     The rows are made a cubic in alpha (which the not-a-knot spline reproduces exactly) so
     that the interpolation between lattice alphas is checked too.
@@ -590,7 +590,11 @@ def test_shared_mesh_correction_is_solved_once_per_lattice_alpha(layer_a_context
         table = effect.mesh_table(ctx, ctx.shared_mesh)
         ctx.platen_slip_mesh_table = table
     own = effect.mesh_alphas(layers[2])
+    assert own == layers[2].grid_alphas(effect.alpha_offsets)  # its own grid, as unshared
     assert calls == [(a, (40.0, 24.0)) for a in own]  # only the layer off the median
+    # a later call for one layer keeps the campaign's geometry and solves nothing again
+    assert D._plan_shared_mesh(layers[1:2], settings, ["platen_slip"], {"B": 4.3}) == {}
+    assert layers[1].mesh_geometry == campaign
     levels = np.asarray(layers[0].data.levels)
     for ctx, geometry in ((layers[0], campaign), (layers[1], campaign),
                           (layers[2], (40.0, 24.0))):
