@@ -729,7 +729,7 @@ class _GridForwardEffect(Effect):
         """Alphas at which the layer's up-front discretisation correction is solved.
 
         The grid's alphas, or for a layer pointed at the campaign's geometry
-        (``mesh_geometry``, see :func:`_solve_shared_mesh`) the lattice points of spacing
+        (``mesh_geometry``, see :func:`_plan_shared_mesh`) the lattice points of spacing
         :data:`MESH_ALPHA_STEP` that enclose them (the same points for every layer near
         the same alphas, so that their solves are shared).
         """
@@ -2157,20 +2157,13 @@ def _campaign_geometry(contexts) -> tuple[float, float] | None:
     return tuple(float(x) for x in np.median(np.array(sizes), axis=0))
 
 
-def _solve_shared_mesh(contexts, settings, names, alphas, pool, progress) -> int:
-    """Solve the campaign-wide discretisation corrections the layers' next grids need.
+def _solve_shared_mesh(todo: dict, shared: dict, settings, pool, progress) -> int:
+    """Solve the campaign-wide corrections ``todo`` (see :func:`_plan_shared_mesh`).
 
-    For the effects of ``names`` with ``mesh_shared``: each layer near the campaign's median
-    geometry (:data:`MESH_GEOMETRY_TOLERANCE`) is pointed at it (``mesh_geometry``), and
-    every lattice alpha any layer needs and no earlier call solved is solved, one work item
-    per alpha, into the dict ``shared_mesh`` all the contexts hold. Returns the solves.
+    One work item per effect and lattice alpha, into ``shared``. Returns the solves.
     """
     import concurrent.futures as cf
 
-    todo = _plan_shared_mesh(contexts, settings, names, alphas)
-    if not todo:
-        return 0
-    shared = contexts[0].shared_mesh
     futures = [pool.submit(_mesh_rows_job, settings, *job) for job in todo.values()]
     bar = None
     if progress:
@@ -2194,8 +2187,11 @@ def _solve_shared_mesh(contexts, settings, names, alphas, pool, progress) -> int
 def _plan_shared_mesh(contexts, settings, names, alphas) -> dict:
     """The campaign-wide correction solves the next grids need: key -> job arguments.
 
-    Points every context at the dict ``shared_mesh`` they all hold and, if near the
-    campaign's median geometry, at that geometry (``mesh_geometry``; else None).
+    For the effects of ``names`` with ``mesh_shared``: points every context at the dict
+    ``shared_mesh`` they all hold and, if near the campaign's median geometry
+    (:data:`MESH_GEOMETRY_TOLERANCE`), at that geometry (``mesh_geometry``; else None, and
+    the layer's job solves its own); returns every lattice alpha a layer near it needs and no
+    earlier call solved.
     """
     effects = [e for e in map(make_effect, names)
                if getattr(e, "mesh_shared", False) and e.mesh_values]
@@ -2279,7 +2275,8 @@ def _prepare(contexts, settings, names, alphas, workers, scheduler, progress,
     with executor(max(len(contexts), len(todo)), max_workers=workers,
                   scheduler=scheduler) as pool:
         if todo:
-            n_solves += _solve_shared_mesh(contexts, settings, names, alphas, pool, progress)
+            n_solves += _solve_shared_mesh(todo, contexts[0].shared_mesh, settings, pool,
+                                           progress)
 
         def mesh_of(ctx):  # the shared rows this layer's grids read
             shared = getattr(ctx, "shared_mesh", None) or {}

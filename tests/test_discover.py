@@ -574,7 +574,9 @@ def test_shared_mesh_correction_is_solved_once_per_lattice_alpha(layer_a_context
     effect = make_effect("platen_slip")
     assert effect.mesh_shared
     settings = layers[0].unit.settings
-    D._solve_shared_mesh(layers, settings, ["platen_slip"], None, SerialExecutor(), False)
+    todo = D._plan_shared_mesh(layers, settings, ["platen_slip"], None)
+    D._solve_shared_mesh(todo, layers[0].shared_mesh, settings, SerialExecutor(), False)
+    assert all(ctx.shared_mesh is layers[0].shared_mesh for ctx in layers)
     campaign = D._campaign_geometry(layers)
     assert layers[0].mesh_geometry == layers[1].mesh_geometry == campaign
     assert layers[2].mesh_geometry is None
