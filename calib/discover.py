@@ -2191,26 +2191,41 @@ def _plan_shared_mesh(contexts, settings, names, alphas) -> dict:
     ``shared_mesh`` they all hold and, if near the campaign's median geometry
     (:data:`MESH_GEOMETRY_TOLERANCE`), at that geometry (``mesh_geometry``; else None, and
     the layer's job solves its own); returns every lattice alpha a layer near it needs and no
-    earlier call solved.
+    earlier call solved. Shared only where that saves solves, as decided on the first call:
+    a single layer's lattice has seven alphas against its own grid's four, layers A and D of
+    a generated campaign eight against their four and four, the embedded campaign's six
+    layers nine against 24.
     """
     effects = [e for e in map(make_effect, names)
                if getattr(e, "mesh_shared", False) and e.mesh_values]
     if not effects or not settings.mesh_correction:
         return {}
     shared = next((c.shared_mesh for c in contexts if hasattr(c, "shared_mesh")), {})
-    # the first call's, over every layer (later ones may be given the moved layers only)
-    campaign = next((c.campaign_geometry for c in contexts
-                     if getattr(c, "campaign_geometry", None) is not None), None)
-    campaign = campaign or _campaign_geometry(contexts)
+    # decided on the first call, over every layer (later ones may be given moved layers only)
+    first = not any(hasattr(c, "campaign_geometry") for c in contexts)
+    campaign = (_campaign_geometry(contexts) if first else
+                next(c.campaign_geometry for c in contexts if hasattr(c, "campaign_geometry")))
+    near = {ctx.layer: campaign is not None and all(
+        abs(x - y) <= MESH_GEOMETRY_TOLERANCE * y for x, y in zip(ctx.geometry, campaign))
+        for ctx in contexts}
+    if first:
+        # the lattice pays only where it saves solves (see above)
+        lattice, own = set(), 0
+        for ctx in contexts:
+            if near[ctx.layer]:
+                ctx.mesh_geometry = campaign
+                lattice |= {a for e in effects for a in e.mesh_alphas(ctx)}
+                ctx.mesh_geometry = None
+                own += sum(len(ctx.grid_alphas(e.alpha_offsets)) for e in effects)
+        if len(lattice) >= own:
+            campaign = None
     todo = {}
     for ctx in contexts:
         ctx.shared_mesh = shared
         ctx.campaign_geometry = campaign
-        near = campaign is not None and all(
-            abs(x - y) <= MESH_GEOMETRY_TOLERANCE * y for x, y in zip(ctx.geometry, campaign))
-        ctx.mesh_geometry = campaign if near else None
-        if not near:
-            continue  # its own geometry: solved in its layer's job
+        ctx.mesh_geometry = campaign if campaign is not None and near[ctx.layer] else None
+        if ctx.mesh_geometry is None:
+            continue  # its own geometry and grid alphas: solved in its layer's job
         saved = ctx.alpha_ref
         if alphas is not None:
             ctx.alpha_ref = alphas[ctx.layer]

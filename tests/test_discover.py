@@ -543,8 +543,9 @@ def test_candidates_fitted_in_worker_processes_equal_those_fitted_here(layer_a_c
 def test_shared_mesh_correction_is_solved_once_per_lattice_alpha(layer_a_context,
                                                                  monkeypatch):
     """Platen slip's up-front correction is solved once per alpha of the campaign's lattice
-    for every layer near the campaign's median geometry, and splined in alpha; a layer off
-    that geometry solves its own at its own grid alphas.
+    for every layer near the campaign's median geometry, and splined in alpha, where that
+    saves solves; a layer off that geometry, or a single layer, solves its own at its own
+    grid alphas.
 
     The rows are made a cubic in alpha (which the not-a-knot spline reproduces exactly) so
     that the interpolation between lattice alphas is checked too.
@@ -564,25 +565,38 @@ def test_shared_mesh_correction_is_solved_once_per_lattice_alpha(layer_a_context
 
     monkeypatch.setattr(D, "_mesh_rows", fake)
     layers = []
-    for name, alpha in (("A", 3.3), ("B", 4.6), ("C", 4.0)):
-        ctx = copy.copy(layer_a_context)
-        ctx.layer, ctx.alpha_ref = name, alpha
-        for attr in ("shared_mesh", "mesh_geometry"):
-            ctx.__dict__.pop(attr, None)
-        layers.append(ctx)
-    layers[2].geometry = (40.0, 24.0)  # 5 % wider than the campaign's median
+    def contexts(alphas):
+        out = []
+        for name, alpha in alphas:
+            ctx = copy.copy(layer_a_context)
+            ctx.layer, ctx.alpha_ref = name, alpha
+            for attr in ("shared_mesh", "mesh_geometry", "campaign_geometry"):
+                ctx.__dict__.pop(attr, None)
+            out.append(ctx)
+        return out
+
     effect = make_effect("platen_slip")
     assert effect.mesh_shared
-    settings = layers[0].unit.settings
+    settings = layer_a_context.unit.settings
+    # one layer: its lattice (seven alphas) would cost more than its own grid (four)
+    (single,) = contexts([("A", 3.3)])
+    assert D._plan_shared_mesh([single], settings, ["platen_slip"], None) == {}
+    assert single.mesh_geometry is None
+    assert effect.mesh_alphas(single) == single.grid_alphas(effect.alpha_offsets)
+
+    layers = contexts([("A", 3.3), ("B", 4.6), ("D", 4.1), ("C", 4.0)])
+    layers[3].geometry = (40.0, 24.0)  # 5 % wider than the campaign's median
     todo = D._plan_shared_mesh(layers, settings, ["platen_slip"], None)
     D._solve_shared_mesh(todo, layers[0].shared_mesh, settings, SerialExecutor(), False)
     assert all(ctx.shared_mesh is layers[0].shared_mesh for ctx in layers)
     campaign = D._campaign_geometry(layers)
-    assert layers[0].mesh_geometry == layers[1].mesh_geometry == campaign
-    assert layers[2].mesh_geometry is None
-    lattice = sorted({a for ctx in layers[:2] for a in effect.mesh_alphas(ctx)})
+    near = layers[:3]
+    assert all(ctx.mesh_geometry == campaign for ctx in near)
+    assert layers[3].mesh_geometry is None
+    lattice = sorted({a for ctx in near for a in effect.mesh_alphas(ctx)})
     assert lattice == [float(k) for k in range(int(lattice[0]), int(lattice[-1]) + 1)]
-    for ctx in layers[:2]:  # the lattice encloses the layer's grid
+    assert len(lattice) < 4 * len(near)  # fewer solves than each layer's own grid
+    for ctx in near:  # the lattice encloses the layer's grid
         grid = ctx.grid_alphas(effect.alpha_offsets)
         nodes = effect.mesh_alphas(ctx)
         assert nodes[0] <= grid[0] < nodes[0] + 1 and nodes[-1] - 1 < grid[-1] <= nodes[-1]
@@ -591,15 +605,15 @@ def test_shared_mesh_correction_is_solved_once_per_lattice_alpha(layer_a_context
     for ctx in layers:
         table = effect.mesh_table(ctx, ctx.shared_mesh)
         ctx.platen_slip_mesh_table = table
-    own = effect.mesh_alphas(layers[2])
-    assert own == layers[2].grid_alphas(effect.alpha_offsets)  # its own grid, as unshared
+    own = effect.mesh_alphas(layers[3])
+    assert own == layers[3].grid_alphas(effect.alpha_offsets)  # its own grid, as unshared
     assert calls == [(a, (40.0, 24.0)) for a in own]  # only the layer off the median
     # a later call for one layer keeps the campaign's geometry and solves nothing again
     assert D._plan_shared_mesh(layers[1:2], settings, ["platen_slip"], {"B": 4.3}) == {}
     assert layers[1].mesh_geometry == campaign
     levels = np.asarray(layers[0].data.levels)
     for ctx, geometry in ((layers[0], campaign), (layers[1], campaign),
-                          (layers[2], (40.0, 24.0))):
+                          (layers[3], (40.0, 24.0))):
         for alpha in (ctx.alpha_ref, ctx.alpha_ref + 1.37):
             expected = (1e-3 * (alpha ** 3 - 2.0 * alpha) * (1.0 + geometry[0] / 100.0)
                         * (1.0 - 0.15) * levels)
