@@ -879,7 +879,8 @@ def test_campaigns_made_by_an_independent_code(scenario):
     # nothing gains, on both together nothing is named either), for time. Slip: both layers,
     # all effects but the second Ogden term, whose tables are half of the workflow's solves
     # and the slowest (stiff laws); on these data it gains nothing (dBIC +0.9 with every
-    # effect, where the offset leads with -404 and slip follows with -313)
+    # effect, where the offset leads with -404 and slip follows with -389, the spring -312;
+    # experiments/results/confusion_final/felupe_frictionless.jsonl)
     if scenario == "clean":
         effects = EFFECTS
         campaign = dataclasses.replace(campaign, cycles=tuple(
