@@ -666,6 +666,7 @@ def _run_fit(args) -> int:
             "outputs": written,
             "wall_s": result.wall_s,
             "forward_solves": {k: f.n_solves for k, f in result.fits.items()},
+            "warnings": {k: list(f.warnings) for k, f in result.fits.items()},
         })
     return EXIT_OK
 

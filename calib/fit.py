@@ -55,7 +55,9 @@ Identifiability
 ---------------
 Ogden fits are often non-unique (Ogden, Saccomandi & Sgura 2004): over 30 % compression mu and
 alpha trade off. A warning is raised where the correlation exceeds 0.95 in magnitude or alpha's
-relative standard error exceeds 25 %.
+relative standard error exceeds 25 %. An alpha on a bound of the search (``FitSettings.
+alpha_bounds``) is reported with a warning and no standard error or interval: it is the box's
+value, not an estimate.
 
 References
 ----------
@@ -1003,6 +1005,20 @@ def fit_layer(cycles: Sequence, settings: FitSettings | None = None,
             f"the data hardly separate mu from alpha (correlation {corr:+.3f}, alpha "
             f"{alpha:.2f} +- {alpha_se:.2f}): Ogden fits can be non-unique (Ogden, Saccomandi "
             "& Sgura 2004); more strain range or a second load case would help")
+
+    # an optimum on the edge of the search is the box's, not the data's: lmfit's standard
+    # error there comes from the bound's transform (alpha 1.000 +- 2e-15 on a layer whose
+    # closed-form alpha was 2.25), and would read as a precise estimate
+    side = next((name for name, b in (("lower", bounds[0]), ("upper", bounds[1]))
+                 if abs(alpha - b) <= 1e-3 * max(1.0, abs(b))), None)
+    if side is not None:
+        alpha_se, corr = math.nan, math.nan
+        ci.pop("alpha", None)
+        warnings.append(
+            f"alpha = {alpha:.3f} is at the {side} bound of the search ({bounds[0]:g} to "
+            f"{bounds[1]:g}): the one-term Ogden law with these platens cannot follow the "
+            "curve's shape here; the value and its uncertainty are not estimates (check the "
+            "platen condition and the contact point, or try another model)")
 
     # the surrogate against direct solves at the optimum
     U_direct = unit.direct(alpha)

@@ -195,6 +195,25 @@ def test_bad_layers_give_clear_messages_and_others_still_fit():
         layer_data(good + lonely)
 
 
+def test_alpha_on_a_bound_of_the_search_is_flagged_not_reported_as_an_estimate():
+    """A layer whose curve the law can follow only beyond the searched alphas: the fit ends
+    on the bound, says so, and gives no standard error or interval for it (lmfit's, from the
+    bound's transform, would read as a precise estimate)."""
+    cycles = _layer("A", 1875.0, 6.0, [(38.0, 24.0), (38.0, 24.0)])
+    settings = FitSettings(mesh_correction=None, contact_fit=False, alpha_bounds=(1.0, 4.0))
+    fit = fit_layer(cycles, settings)
+    assert fit.alpha == pytest.approx(4.0, abs=4e-3)
+    assert np.isnan(fit.alpha_stderr) and np.isnan(fit.mu_alpha_correlation)
+    assert "alpha" not in fit.ci
+    assert any("upper bound of the search (1 to 4)" in w for w in fit.warnings)
+    # the same layer inside the box: no such warning, a finite standard error
+    inside = fit_layer(cycles, FitSettings(mesh_correction=None, contact_fit=False,
+                                           profile=False))
+    assert inside.alpha == pytest.approx(6.0, rel=5e-3)
+    assert np.isfinite(inside.alpha_stderr)
+    assert not any("bound of the search" in w for w in inside.warnings)
+
+
 def test_axial_ratio_grades_the_fitting_and_correction_meshes():
     """``FitSettings.axial_ratio`` reaches every solve of the forward model; bad values fail."""
     key = CurveKey(alpha=(4.9,), diameter_mm=38.0, height_mm=24.0)
@@ -247,6 +266,8 @@ def test_fit_cli_writes_parameters_and_plots(tmp_path, capsys):
     assert main(["fit", str(data), "--out", str(out), "--json", "--workers", "1"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["parameters"][0]["layer"] == "A"
+    # what the fit noticed, per fitted layer (the bound warning among it where it applies)
+    assert set(report["warnings"]) == {"A"} and isinstance(report["warnings"]["A"], list)
     table = read_parameters(out / "parameters.csv")
     assert table.loc[0, "mu_Pa"] == pytest.approx(1875.0, rel=0.02)
     assert (out / "fit_A.png").stat().st_size > 1000
