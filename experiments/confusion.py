@@ -84,6 +84,12 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
         "heldout_after": {k: v["rms_N"] for k, v in result.heldout_after.items()},
         "systematic_before": result.systematic_before,
         "systematic_after": result.systematic_after,
+        "rms_samples_before_N": result.rms_samples_before_N,
+        "rms_samples_after_N": result.rms_samples_after_N,
+        "rms_samples_after_fast_N": result.rms_samples_after_fast_N,
+        "heldout_samples_before": {k: v["rms_samples_N"]
+                                   for k, v in result.heldout_before.items()},
+        "heldout_samples_after": {k: v["rms_samples_N"] for k, v in result.heldout_after.items()},
         "heldout_systematic_before": {k: v["systematic"]
                                       for k, v in result.heldout_before.items()},
         "heldout_systematic_after": {k: v["systematic"]
@@ -198,13 +204,19 @@ def summarise(records: list[dict]) -> str:
             sys_held = ", ".join(f"{k} {100 * v:.2f} -> "
                                  f"{100 * r['heldout_systematic_after'][k]:.2f} %"
                                  for k, v in r.get("heldout_systematic_before", {}).items())
+            samples = (f"{1e3 * r['rms_samples_before_N']:.1f} -> "
+                       f"{1e3 * r['rms_samples_after_N']:.1f}, held out " + ", ".join(
+                           f"{k} {1e3 * v:.1f} -> {1e3 * r['heldout_samples_after'][k]:.1f}"
+                           for k, v in r["heldout_samples_before"].items())
+                       if "rms_samples_before_N" in r else "not recorded")
             also = decide_all(r["candidates"], THRESHOLDS, r["n_cycles"])[1]
             named = r["named"] + (f" (equally possible: {', '.join(also)})" if also else "")
             lines.append(f"- {r['scenario']} seed {r['seed']}: named {named}; true effect "
                          f"{c['delta_bic'] / r['n_cycles']:.1f}/cycle, gain {gain:+.3f}, "
                          f"{c['parameters']} (truth {r['truth']}); RMS gap (mN) fitted "
                          f"{1e3 * r['rms_before_N']:.1f} -> {1e3 * r['rms_after_N']:.1f}, "
-                         f"held out {held}; systematic part fitted {sys_fit}, held out "
+                         f"held out {held}; each sample at its own mu, alpha: fitted "
+                         f"{samples}; systematic part fitted {sys_fit}, held out "
                          f"{sys_held} (model of the unthresholded pick, "
                          f"{r['named_unthresholded']})" if c else "")
     warned = [r for r in records if r.get("warning")]
