@@ -751,9 +751,12 @@ def _run_discover(args) -> int:
               f"before, {1e3 * result.rms_samples_after_N:.2f} mN after")
         for kind in result.heldout_before:
             b, a = result.heldout_before[kind], result.heldout_after[kind]
+            # a sample held out whole has no parameters of its own: only the layer's curve
+            own = ("" if kind == "sample" else
+                   f" (each sample at its own: {1e3 * b['rms_samples_N']:.2f} -> "
+                   f"{1e3 * a['rms_samples_N']:.2f} mN)")
             print(f"held-out (leave one {kind} out): {1e3 * b['rms_N']:.2f} -> "
-                  f"{1e3 * a['rms_N']:.2f} mN (each sample at its own: "
-                  f"{1e3 * b['rms_samples_N']:.2f} -> {1e3 * a['rms_samples_N']:.2f} mN); "
+                  f"{1e3 * a['rms_N']:.2f} mN{own}; "
                   f"systematic {100 * b['systematic']:.2f} -> {100 * a['systematic']:.2f} %")
         print(f"report: {written['markdown']}")
     return EXIT_OK

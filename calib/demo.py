@@ -185,7 +185,10 @@ def _summary_markdown(summary: dict, table_text: str) -> str:
         lines += ["", "## Discrepancy workflow", "",
                   f"Missing effect named: **{disc['effect']}**; RMS gap "
                   f"{1e3 * disc['rms_before_N']:.1f} mN before, "
-                  f"{1e3 * disc['rms_after_N']:.1f} mN after. See [discover/](discover/)."]
+                  f"{1e3 * disc['rms_after_N']:.1f} mN after; with every sample at its own mu "
+                  f"and alpha {1e3 * disc['rms_samples_before_N']:.1f} mN before, "
+                  f"{1e3 * disc['rms_samples_after_N']:.1f} mN after. See "
+                  "[discover/](discover/)."]
     lines += ["", "## Timings (s)", ""]
     lines += [f"- {k}: {v:.1f}" for k, v in summary["timings"].items()]
     return "\n".join(lines) + "\n"

@@ -191,6 +191,11 @@ def test_hidden_preconditioning_is_named_and_recovered():
         assert result.heldout_after[kind]["rms_N"] < 0.5 * result.heldout_before[kind]["rms_N"]
     assert result.rms_after_N < 0.5 * result.rms_before_N
     assert result.systematic_after < 0.5 * result.systematic_before
+    # with every sample at its own mu and alpha (which take up a sample's mean softening,
+    # not its order): fitted, and on every held-out rate and sample
+    assert result.rms_samples_after_N < 0.5 * result.rms_samples_before_N
+    for kind, before in result.heldout_before.items():
+        assert result.heldout_after[kind]["rms_samples_N"] < 0.5 * before["rms_samples_N"]
     report = json.loads(json.dumps(result.to_dict(), default=float))
     assert report["candidates"][0]["effect"] == "preconditioning"
     assert {"effect", "delta_bic", "rms_N", "parameters"} <= set(report["candidates"][0])
