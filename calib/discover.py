@@ -1903,6 +1903,7 @@ def _sample_prediction(ctx: LayerContext, model: Model, fit: LayerRefit) -> np.n
             continue
         mu_s, alpha_s = fit.samples[s]
         f = problem.sample_force(k, math.log(mu_s), alpha_s)
+        # outside the model's domain (not met at a refit's optimum) the layer's curve stays
         if f is not None:
             out[problem.points[k]] = f
     return out
