@@ -1935,7 +1935,9 @@ def _heldout(contexts, model_of_training, folds):
                 wr = ctx.whitener(held) @ r
                 # each sample at its own parameters from the training folds (a sample held
                 # out whole at the layer's)
-                rs = _sample_prediction(ctx, model, fits[ctx.layer])[held] - ctx.y[held]
+                own = set(fits[ctx.layer].samples) & set(np.unique(ctx.sample[held]))
+                rs = (_sample_prediction(ctx, model, fits[ctx.layer])[held] - ctx.y[held]
+                      if own else r)
                 sq += float(r @ r)
                 sq_samples += float(rs @ rs)
                 chi2 += float(wr @ wr)
@@ -2179,19 +2181,42 @@ def _mesh_rows(forward: ForwardModel, settings: FitSettings, effect: Effect, alp
     mesh force) of the effect's solve minus the base model's, at the strain ``levels`` of the
     ``geometry`` (diameter, height in mm); 0 at the reference.
     """
-    d, h = geometry
-    base = CurveKey(alpha=(float(alpha),), diameter_mm=float(d), height_mm=float(h),
-                    nu=settings.nu, platen=settings.platen)
+    keys = _mesh_keys(settings, effect, alpha, geometry)
+    base = keys[effect.reference]
     travel = np.asarray(levels, dtype=float) * base.height_mm
     scale = settings.mesh_correction
 
     def ratio(key):
         return np.log(forward.curve(key, scale)(travel) / forward.curve(key)(travel))
 
-    values = sorted(set(effect.mesh_values) | {effect.reference})
     return np.array([np.zeros(len(travel)) if v == effect.reference else
-                     ratio(dataclasses.replace(base, **effect.overrides(float(v)))) - ratio(base)
-                     for v in values])
+                     ratio(key) - ratio(base) for v, key in keys.items()])
+
+
+def _mesh_keys(settings: FitSettings, effect: Effect, alpha: float, geometry) -> dict:
+    """The solves of :func:`_mesh_rows` (each on the fitting and the finer mesh): value -> key.
+
+    Sorted by value; the effect's reference value is the base model's solve.
+    """
+    d, h = geometry
+    base = CurveKey(alpha=(float(alpha),), diameter_mm=float(d), height_mm=float(h),
+                    nu=settings.nu, platen=settings.platen)
+    values = sorted(set(effect.mesh_values) | {effect.reference})
+    return {v: base if v == effect.reference else
+            dataclasses.replace(base, **effect.overrides(float(v))) for v in values}
+
+
+def _mesh_stored(forward: ForwardModel, settings: FitSettings, effect: Effect, alpha: float,
+                 geometry) -> bool:
+    """Whether every solve of :func:`_mesh_rows` is stored (:mod:`calib.stored`)."""
+    if not forward.use_stored:
+        return False
+    from .stored import stored_solves
+
+    store = stored_solves()
+    return all(store.has(key, scale, forward)
+               for key in _mesh_keys(settings, effect, alpha, geometry).values()
+               for scale in (forward.mesh_scale, settings.mesh_correction))
 
 
 def _mesh_rows_job(settings: FitSettings, name: str, alpha: float, geometry, levels):
@@ -2210,13 +2235,39 @@ def _campaign_geometry(contexts) -> tuple[float, float] | None:
     return tuple(float(x) for x in np.median(np.array(sizes), axis=0))
 
 
+def _lattice_geometry(campaign) -> tuple[float, float] | None:
+    """The geometry (diameter, height in mm) the campaign-wide corrections are solved on.
+
+    The campaign's median geometry, or where its aspect ratio is within
+    :data:`MESH_GEOMETRY_TOLERANCE` of one whose solves are stored with the package
+    (:mod:`calib.stored`: the rig's nominal 38 x 24 mm sample), that aspect ratio at the
+    median diameter: the corrections depend on the aspect ratio alone (they are ratios of
+    forces at strain levels), and that within the tolerance by at most 0.06 % of the force
+    (see :data:`MESH_GEOMETRY_TOLERANCE`).
+    """
+    if campaign is None:
+        return None
+    from .stored import stored_solves
+
+    d, h = campaign
+    aspect = stored_solves().nearest_aspect(d / h, MESH_GEOMETRY_TOLERANCE)
+    return campaign if aspect is None else (d, d / aspect)
+
+
 def _solve_shared_mesh(todo: dict, shared: dict, settings, pool, progress) -> int:
     """Solve the campaign-wide corrections ``todo`` (see :func:`_plan_shared_mesh`).
 
-    One work item per effect and lattice alpha, into ``shared``. Returns the solves.
+    One work item per effect and lattice alpha, into ``shared``; those whose solves are all
+    stored with the package (:mod:`calib.stored`) are read here. Returns the solves.
     """
     import concurrent.futures as cf
 
+    forward = ForwardModel.for_settings(settings)
+    for key, (name, a, geometry, levels) in list(todo.items()):
+        effect = make_effect(name)
+        if _mesh_stored(forward, settings, effect, a, geometry):
+            shared[key] = _mesh_rows(forward, settings, effect, a, geometry, levels)
+            del todo[key]
     futures = [pool.submit(_mesh_rows_job, settings, *job) for job in todo.values()]
     bar = None
     if progress:
@@ -2256,27 +2307,37 @@ def _plan_shared_mesh(contexts, settings, names, alphas) -> dict:
     shared = next((c.shared_mesh for c in contexts if hasattr(c, "shared_mesh")), {})
     # decided on the first call, over every layer (later ones may be given moved layers only)
     first = not any(hasattr(c, "campaign_geometry") for c in contexts)
-    campaign = (_campaign_geometry(contexts) if first else
-                next(c.campaign_geometry for c in contexts if hasattr(c, "campaign_geometry")))
+    if first:
+        campaign = _campaign_geometry(contexts)
+        lattice_geometry = _lattice_geometry(campaign)
+    else:
+        ref = next(c for c in contexts if hasattr(c, "campaign_geometry"))
+        campaign, lattice_geometry = ref.campaign_geometry, ref.lattice_geometry
     near = {ctx.layer: campaign is not None and all(
         abs(x - y) <= MESH_GEOMETRY_TOLERANCE * y for x, y in zip(ctx.geometry, campaign))
         for ctx in contexts}
-    if first:
-        # the lattice pays only where it saves solves (see above)
+    if first and campaign is not None:
+        # the lattice pays only where it saves solves (see above); a lattice alpha whose
+        # solves are stored with the package costs none
+        forward = ForwardModel.for_settings(settings)
         lattice, own = set(), 0
         for ctx in contexts:
             if near[ctx.layer]:
-                ctx.mesh_geometry = campaign
-                lattice |= {a for e in effects for a in e.mesh_alphas(ctx)}
+                ctx.mesh_geometry = lattice_geometry
+                lattice |= {(e.name, a) for e in effects for a in e.mesh_alphas(ctx)}
                 ctx.mesh_geometry = None
                 own += sum(len(ctx.grid_alphas(e.alpha_offsets)) for e in effects)
-        if len(lattice) >= own:
-            campaign = None
+        by_name = {e.name: e for e in effects}
+        to_solve = [1 for name, a in lattice if not _mesh_stored(
+            forward, settings, by_name[name], a, lattice_geometry)]
+        if len(to_solve) >= own:
+            campaign = lattice_geometry = None
     todo = {}
     for ctx in contexts:
         ctx.shared_mesh = shared
         ctx.campaign_geometry = campaign
-        ctx.mesh_geometry = campaign if campaign is not None and near[ctx.layer] else None
+        ctx.lattice_geometry = lattice_geometry
+        ctx.mesh_geometry = lattice_geometry if campaign is not None and near[ctx.layer] else None
         if ctx.mesh_geometry is None:
             continue  # its own geometry and grid alphas: solved in its layer's job
         saved = ctx.alpha_ref
@@ -2285,9 +2346,9 @@ def _plan_shared_mesh(contexts, settings, names, alphas) -> dict:
         try:
             for effect in effects:
                 for a in effect.mesh_alphas(ctx):
-                    key = _shared_mesh_key(effect, a, campaign, ctx.data.levels)
+                    key = _shared_mesh_key(effect, a, lattice_geometry, ctx.data.levels)
                     if key not in shared:
-                        todo[key] = (effect.name, a, campaign, tuple(ctx.data.levels))
+                        todo[key] = (effect.name, a, lattice_geometry, tuple(ctx.data.levels))
         finally:
             ctx.alpha_ref = saved
     return todo
@@ -2731,10 +2792,7 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
 
     heldout_base = _heldout(contexts, current_of_training, folds)
     heldout_current = heldout_base
-    # each sample at its own parameters under the base model (and its noise model)
-    _, fits_base = _campaign_fit(contexts, Model([], []))
-    samples_before = {ctx.layer: _sample_prediction(ctx, Model([], []), fits_base[ctx.layer])
-                      for ctx in contexts if ctx.layer in fits_base}
+    samples_before = {}
     for round_no in range(max_rounds):
         remaining = [e for e in candidates_all
                      if e.name not in {a.name for a in accepted.effects}]
@@ -2742,6 +2800,9 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
             break
         tried = []
         chi2_current, fits_current = _campaign_fit(contexts, accepted)
+        if round_no == 0:  # each sample at its own parameters under the base model
+            samples_before = {ctx.layer: _sample_prediction(ctx, accepted, fits_current[ctx.layer])
+                              for ctx in contexts if ctx.layer in fits_current}
         rms_current = _rms(contexts, fits_current)
         systematic_current = _pooled(
             _systematic(ctx, fits_current[ctx.layer][3] if accepted.effects
@@ -2792,6 +2853,10 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
         heldout_current = _heldout(contexts, accepted_of_training, folds)
         log(f"discover: accepted {best.effect} {best.parameters}")
 
+    if not samples_before:  # no round ran
+        _, fits_base = _campaign_fit(contexts, Model([], []))
+        samples_before = {ctx.layer: _sample_prediction(ctx, Model([], []), fits_base[ctx.layer])
+                          for ctx in contexts if ctx.layer in fits_base}
     # the gap before and after, with direct FE solves of the accepted model
     _, fits_after = _campaign_fit(contexts, accepted)
     per_layer = {}

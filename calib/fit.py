@@ -255,17 +255,22 @@ class ForwardModel:
         Largest strain any comparison needs: a solve that goes unstable beyond it is repeated
         to just before the instability; one that fails earlier raises
         :class:`solver.SolverInstability`.
+    use_stored : bool
+        Read a solve stored with the package (:mod:`calib.stored`) instead of solving it.
     """
 
     def __init__(self, mesh_scale: float = 1.0, strain_max: float = 0.31, n_out: int = 63,
-                 strain_needed: float = 0.30, axial_ratio: float = 3.0):
+                 strain_needed: float = 0.30, axial_ratio: float = 3.0,
+                 use_stored: bool = True):
         self.mesh_scale = mesh_scale
         self.axial_ratio = axial_ratio
         self.strain_max = strain_max
         self.strain_needed = strain_needed
         self.n_out = n_out
         self._cache: dict[tuple, interpolate.CubicSpline] = {}
+        self.use_stored = use_stored
         self.n_solves = 0
+        self.n_stored = 0
         self.solve_s = 0.0
 
     def curve(self, key: CurveKey, mesh_scale: float | None = None) -> interpolate.CubicSpline:
@@ -275,6 +280,14 @@ class ForwardModel:
         """
         scale = self.mesh_scale if mesh_scale is None else mesh_scale
         spline = self._cache.get((key, scale))
+        if spline is None and self.use_stored:
+            from .stored import stored_solves
+
+            stored = stored_solves().lookup(key, scale, self)
+            if stored is not None:
+                self.n_stored += 1
+                spline = interpolate.CubicSpline(*stored)
+                self._cache[(key, scale)] = spline
         if spline is None:
             material = Ogden(mu_Pa=key.fractions, alpha=key.alpha, nu=key.nu,
                              prony=Prony(g=key.g, tau_s=key.tau_s) if key.g else None)

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import calib.stored
 from calib.discover import (
     EFFECTS,
     THRESHOLDS,
@@ -22,6 +23,7 @@ from calib.discover import (
     make_effect,
 )
 from calib.loaders import Campaign
+from calib.stored import StoredSolves
 
 from .test_fit import RATES, _cycle
 
@@ -584,6 +586,38 @@ def test_candidates_fitted_in_worker_processes_equal_those_fitted_here(layer_a_c
         assert math.isfinite(chi1)
 
 
+def test_a_stored_lattice_is_read_even_for_a_single_layer(layer_a_context, monkeypatch):
+    """Where the package stores the lattice's solves (calib.stored), a single layer near the
+    stored aspect ratio takes the lattice, on that aspect ratio, and nothing is solved."""
+    import copy
+
+    import calib.discover as D
+
+    class NoPool:
+        def submit(self, *args, **kwargs):
+            raise AssertionError("a stored correction was sent to be solved")
+
+    ctx = copy.copy(layer_a_context)
+    for attr in ("shared_mesh", "mesh_geometry", "campaign_geometry", "lattice_geometry"):
+        ctx.__dict__.pop(attr, None)
+    settings = ctx.unit.settings
+    todo = D._plan_shared_mesh([ctx], settings, ["platen_slip"], None)
+    assert ctx.campaign_geometry == D._campaign_geometry([ctx])
+    assert ctx.mesh_geometry[0] == ctx.campaign_geometry[0]
+    assert ctx.mesh_geometry[0] / ctx.mesh_geometry[1] == pytest.approx(38 / 24, rel=1e-12)
+    effect = make_effect("platen_slip")
+    lattice = effect.mesh_alphas(ctx)
+    assert lattice == [float(k) for k in range(int(lattice[0]), int(lattice[-1]) + 1)]
+    assert len(todo) == len(lattice)
+    assert D._solve_shared_mesh(todo, ctx.shared_mesh, settings, NoPool(), False) == 0
+    assert len(ctx.shared_mesh) == len(lattice)
+    values = sorted(set(effect.mesh_values) | {effect.reference})
+    for a in lattice:  # (stored curves equal fresh solves: tests/test_stored.py)
+        rows = ctx.shared_mesh[D._shared_mesh_key(effect, a, ctx.mesh_geometry, ctx.data.levels)]
+        assert rows.shape == (len(values), len(ctx.data.levels)) and np.isfinite(rows).all()
+        assert not rows[values.index(effect.reference)].any() and rows.any()
+
+
 def test_shared_mesh_correction_is_solved_once_per_lattice_alpha(layer_a_context,
                                                                  monkeypatch):
     """Platen slip's up-front correction is solved once per alpha of the campaign's lattice
@@ -608,6 +642,8 @@ def test_shared_mesh_correction_is_solved_once_per_lattice_alpha(layer_a_context
         return np.outer(1.0 - values, np.asarray(levels)) * shape
 
     monkeypatch.setattr(D, "_mesh_rows", fake)
+    # as if no solves were stored with the package (see the test after this one)
+    monkeypatch.setattr(calib.stored, "stored_solves", lambda: StoredSolves([], [], [], []))
     layers = []
     def contexts(alphas):
         out = []
