@@ -2270,7 +2270,7 @@ def _solve_shared_mesh(todo: dict, shared: dict, settings, pool, progress) -> in
             del todo[key]
     futures = [pool.submit(_mesh_rows_job, settings, *job) for job in todo.values()]
     bar = None
-    if progress:
+    if progress and futures:
         from tqdm.auto import tqdm
 
         what = ", ".join(sorted({job[0] for job in todo.values()}))
