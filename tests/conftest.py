@@ -42,14 +42,32 @@ def pytest_collection_modifyitems(config, items):
 def pytest_configure(config):
     if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
         return  # an xdist worker (the controller warmed the cache), or a serial run
-    from solver import CompressionTest, Ogden, hex_cylinder, simulate
+    import subprocess
+    import sys
+
+    # the hexahedral paths in a second process while this one compiles the axisymmetric
+    # ones (their kernels hardly overlap: 40 and 34 s here, one after the other or at once;
+    # the cache's lock makes saving the few they share safe, see solver._jit)
+    hexa = subprocess.Popen([sys.executable, "-c", _WARM_HEX])
+    from solver import CompressionTest, Ogden, simulate
 
     material = Ogden(mu_Pa=1875.0, alpha=4.9, nu=0.499)
     small = CompressionTest(strain=0.02)
     simulate(material, small)  # volumetric mass
     simulate(material, small, volumetric_mass=0.0)  # lumped masses
     simulate(material, CompressionTest(strain=0.02, platen="coulomb", friction=0.3))
-    hexa = hex_cylinder(38.0, 24.0, 2, 2, 2)
-    for parallel in (True, False):
-        simulate(material, small, hexa, parallel=parallel)
-    simulate(material, CompressionTest(strain=0.02, platen="coulomb", friction=0.3), hexa)
+    if hexa.wait() != 0:  # the hexahedral tests will show why
+        print(f"conftest: warming the hexahedral kernels failed ({hexa.returncode})",
+              file=sys.stderr)
+
+
+_WARM_HEX = """
+from solver import CompressionTest, Ogden, hex_cylinder, simulate
+
+material = Ogden(mu_Pa=1875.0, alpha=4.9, nu=0.499)
+small = CompressionTest(strain=0.02)
+hexa = hex_cylinder(38.0, 24.0, 2, 2, 2)
+for parallel in (True, False):
+    simulate(material, small, hexa, parallel=parallel)
+simulate(material, CompressionTest(strain=0.02, platen="coulomb", friction=0.3), hexa)
+"""

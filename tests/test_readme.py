@@ -22,7 +22,8 @@ def test_quickstart_has_the_two_commands_and_ci_runs_the_second():
     assert len(blocks) == 2
     setup_and_demo, setup_and_tests = blocks
     assert "pip install -e ." in setup_and_demo and "calib demo" in setup_and_demo
-    assert 'pip install -e ".[test]"' in setup_and_tests and "pytest" in setup_and_tests
+    assert "pip install" in setup_and_tests and '-e ".[test]"' in setup_and_tests
+    assert "pytest" in setup_and_tests
     ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
     assert "blocks[1]" in ci and "README.md" in ci  # .ci/run extracts and runs block 2
 
