@@ -9,8 +9,9 @@ now also locks its folder, see :func:`solver._jit._locked_cache`; the warm-up st
 each worker compiling everything itself).
 
 The slow tests run first. The four longest (the README's run of the whole discrepancy
-workflow, 12-15 minutes in CI, the notebook's on one layer, 2-3 minutes alone, and the two
-campaigns made by FElupe, 2-5 minutes in CI) come in an order that xdist's
+workflow, 12 minutes in CI on 2026-12-07 and 20 before slip's costliest solves were stored
+with the package, the notebook's on one layer, 2-5 minutes, and the two campaigns made by
+FElupe, 2-8 minutes in CI) come in an order that xdist's
 ``--maxschedchunk 2`` (two tests per worker at the start) hands out as README + FElupe clean
 to one worker and notebook + FElupe slip to the other; the rest follows as workers come
 free. In collection order both workflow runs fell late and the run ended on one worker. When
