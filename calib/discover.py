@@ -2293,12 +2293,13 @@ def _plan_shared_mesh(contexts, settings, names, alphas) -> dict:
 
     For the effects of ``names`` with ``mesh_shared``: points every context at the dict
     ``shared_mesh`` they all hold and, if near the campaign's median geometry
-    (:data:`MESH_GEOMETRY_TOLERANCE`), at that geometry (``mesh_geometry``; else None, and
-    the layer's job solves its own); returns every lattice alpha a layer near it needs and no
-    earlier call solved. Shared only where that saves solves, as decided on the first call:
-    a single layer's lattice has seven alphas against its own grid's four, layers A and D of
-    a generated campaign eight against their four and four, the embedded campaign's six
-    layers nine against 24.
+    (:data:`MESH_GEOMETRY_TOLERANCE`), at the lattice's geometry (``mesh_geometry``, see
+    :func:`_lattice_geometry`; else None, and the layer's job solves its own); returns every
+    lattice alpha a layer near it needs and no earlier call solved. Shared only where that
+    saves solves, as decided on the first call: a single layer's lattice has seven alphas
+    against its own grid's four, layers A and D of a generated campaign eight against their
+    four and four, the embedded campaign's six layers nine against 24; a lattice alpha whose
+    solves are stored with the package (:mod:`calib.stored`) costs none.
     """
     effects = [e for e in map(make_effect, names)
                if getattr(e, "mesh_shared", False) and e.mesh_values]

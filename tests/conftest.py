@@ -47,8 +47,8 @@ def pytest_configure(config):
     import sys
 
     # the hexahedral paths in a second process while this one compiles the axisymmetric
-    # ones (their kernels hardly overlap: 40 and 34 s here, one after the other or at once;
-    # the cache's lock makes saving the few they share safe, see solver._jit)
+    # ones (their kernels hardly overlap: 40 and 34 s here, each alone or one after the
+    # other; the cache's lock makes saving the few they share safe, see solver._jit)
     hexa = subprocess.Popen([sys.executable, "-c", _WARM_HEX])
     from solver import CompressionTest, Ogden, simulate
 
