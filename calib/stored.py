@@ -2,7 +2,8 @@
 
 Platen slip's discretisation correction (:class:`calib.discover.PlatenSlip`) needs, at every
 alpha of the campaign-wide lattice, Coulomb solves on the finer correction mesh: about 10 s
-each and 40 to 50 s per alpha, which was 430 of a six-layer discovery's 1100 CPU seconds.
+each and 40 to 50 s per alpha: 431 of the 1564 s of the embedded campaign's discovery run
+in one process under a profiler (2026-12-07).
 Those solves depend on nothing a campaign measures beyond the sample's aspect ratio: with
 Poisson's ratio fixed, the ramp set relative to the lowest natural period and the mesh
 proportional to the sample (:func:`solver.simulate`), a solve on a sample scaled by ``c`` is
