@@ -2329,9 +2329,9 @@ def _plan_shared_mesh(contexts, settings, names, alphas) -> dict:
                 ctx.mesh_geometry = None
                 own += sum(len(ctx.grid_alphas(e.alpha_offsets)) for e in effects)
         by_name = {e.name: e for e in effects}
-        to_solve = [1 for name, a in lattice if not _mesh_stored(
-            forward, settings, by_name[name], a, lattice_geometry)]
-        if len(to_solve) >= own:
+        to_solve = sum(not _mesh_stored(forward, settings, by_name[name], a, lattice_geometry)
+                       for name, a in lattice)
+        if to_solve >= own:
             campaign = lattice_geometry = None
     todo = {}
     for ctx in contexts:
@@ -2793,17 +2793,19 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
 
     heldout_base = _heldout(contexts, current_of_training, folds)
     heldout_current = heldout_base
-    samples_before = {}
+    # the base model's campaign fit, which round 1 starts from; each sample at its own
+    # parameters under it (and its noise model)
+    base_fit = _campaign_fit(contexts, Model([], []))
+    samples_before = {ctx.layer: _sample_prediction(ctx, Model([], []), base_fit[1][ctx.layer])
+                      for ctx in contexts if ctx.layer in base_fit[1]}
     for round_no in range(max_rounds):
         remaining = [e for e in candidates_all
                      if e.name not in {a.name for a in accepted.effects}]
         if not remaining:
             break
         tried = []
-        chi2_current, fits_current = _campaign_fit(contexts, accepted)
-        if round_no == 0:  # each sample at its own parameters under the base model
-            samples_before = {ctx.layer: _sample_prediction(ctx, accepted, fits_current[ctx.layer])
-                              for ctx in contexts if ctx.layer in fits_current}
+        chi2_current, fits_current = (base_fit if round_no == 0
+                                      else _campaign_fit(contexts, accepted))
         rms_current = _rms(contexts, fits_current)
         systematic_current = _pooled(
             _systematic(ctx, fits_current[ctx.layer][3] if accepted.effects
@@ -2854,10 +2856,6 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
         heldout_current = _heldout(contexts, accepted_of_training, folds)
         log(f"discover: accepted {best.effect} {best.parameters}")
 
-    if not samples_before:  # no round ran
-        _, fits_base = _campaign_fit(contexts, Model([], []))
-        samples_before = {ctx.layer: _sample_prediction(ctx, Model([], []), fits_base[ctx.layer])
-                          for ctx in contexts if ctx.layer in fits_base}
     # the gap before and after, with direct FE solves of the accepted model
     _, fits_after = _campaign_fit(contexts, accepted)
     per_layer = {}
