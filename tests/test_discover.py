@@ -642,7 +642,7 @@ def test_shared_mesh_correction_is_solved_once_per_lattice_alpha(layer_a_context
         return np.outer(1.0 - values, np.asarray(levels)) * shape
 
     monkeypatch.setattr(D, "_mesh_rows", fake)
-    # as if no solves were stored with the package (see the test after this one)
+    # as if no solves were stored with the package (see the test before this one)
     monkeypatch.setattr(calib.stored, "stored_solves", lambda: StoredSolves([], [], [], []))
     layers = []
     def contexts(alphas):
