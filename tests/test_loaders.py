@@ -582,3 +582,49 @@ def test_contact_fit_bias_predicts_where_the_loader_finds_contact(tmp_path):
     assert abs(np.mean(errors) - predicted) < 1e-3, (errors, predicted)
     with pytest.raises(ValueError, match="does not rise"):
         loaders.contact_fit_bias(lambda x: np.zeros_like(x), 7.2)
+
+
+def test_a_toe_is_compensated_whatever_the_noise(tmp_path):
+    """A domed face: the platen touches at 0.8 mm but meets the full face 0.3 mm later, the
+    compression of the full face growing as s^2 / 1.2 mm over the first 0.6 mm of travel s
+    (a contact area that grows linearly with travel), then as s - 0.3 mm.
+
+    The contact must be the toe-compensated zero, where the hinge fit of the noise-free curve
+    puts it (``contact_fit_bias``), at 1 and at 4 mN of noise: within 0.02 mm each (found
+    11 um early, about one sample at 100 Hz; the untoed curves' tolerance above is 0.04 mm
+    with coarser sampling) and within 0.02 mm of each other. The toe is trimmed as its own span, nothing is
+    dropped, and a warning says so.
+    """
+    touch, delta = 0.8, 0.3
+
+    def toed(s):
+        s = np.clip(s, 0.0, None)
+        return ogden_force(np.where(s < 2 * delta, s * s / (4 * delta), s - delta))
+
+    expected = touch + loaders.contact_fit_bias(toed, 0.30 * HEIGHT)
+    assert 0.2 < expected - touch < 0.35  # the fit's zero lies in the toe, near its middle
+    readings = {}
+    for noise in (0.001, 0.004):
+        for seed in range(3):
+            tr = make_truth(seed=seed, contact_mm=touch, rate=0.83, hz=100.0, noise=noise,
+                            tare=0.02)
+            tr.f = toed(tr.d - touch) + tr.tare_N + (tr.f - ogden_force(tr.d - touch)
+                                                     - tr.tare_N)
+            c = load_cycle(write_log(tmp_path / f"A1_t1_{seed}_{noise}.csv", tr))
+            readings[noise, seed] = c.contact_mm
+            assert abs(c.contact_mm - expected) < 0.02, (noise, seed, c.contact_mm, expected)
+            kinds = [s.kind for s in c.trimmed]
+            if "toe" in kinds:
+                assert kinds == ["approach", "toe", "hold", "unloading"]
+                assert any(w.startswith("a toe:") for w in c.warnings), c.warnings
+                assert c.force_N[0] > 0.0
+            assert c.n_points - 1 + sum(s.n_points for s in c.trimmed) == len(tr.t)
+    # at 1 mN the toe rises clear of five noise levels before the zero, at 4 mN it does not
+    # (found: 20 and 16-19 mN at the zero): the same reading either way
+    for noise, toes in ((0.001, 3), (0.004, 0)):
+        assert sum("toe" in [s.kind for s in
+                             load_cycle(tmp_path / f"A1_t1_{s}_{noise}.csv").trimmed]
+                   for s in range(3)) == toes, noise
+    lo = np.mean([readings[0.001, s] for s in range(3)])
+    hi = np.mean([readings[0.004, s] for s in range(3)])
+    assert abs(hi - lo) < 0.02, readings
