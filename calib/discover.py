@@ -1002,11 +1002,17 @@ class SecondOgdenTerm(Effect):
                                                   fractions=(1.0 - r, r))
                         if not failed:
                             try:
-                                values[i, j] = np.log(ctx.curve_at_strain(key, ctx.data.levels)
-                                                      / base)
-                                continue
+                                curve = ctx.curve_at_strain(key, ctx.data.levels)
                             except SolverInstability:
-                                failed = True
+                                curve = None
+                            # a law that softens until the force falls to zero fails too,
+                            # though no cell inverts (alpha 10.0 with alpha2 -6 at fraction
+                            # 0.35 on a FElupe-made campaign: the force fell from 1.8e-3 at
+                            # 26 % to -1.7e-4 at 30 %, in units of mu)
+                            if curve is not None and np.all(np.isfinite(curve) & (curve > 0)):
+                                values[i, j] = np.log(curve / base)
+                                continue
+                            failed = True
                         # this law does not survive the test: keep the table smooth with the
                         # previous fraction's values and rule the neighbourhood out. Nor does
                         # a larger fraction of the same alpha2, which is not solved: no row

@@ -101,6 +101,45 @@ def test_second_term_parameters_keep_the_small_strain_modulus_and_stability():
     assert effect.report((1.0, 0.1))["alpha2"] == 14.0
 
 
+def test_a_two_term_law_that_collapses_or_goes_unstable_is_ruled_out_not_tabulated():
+    """A law whose force falls to zero before 30 % (no cell inverts, so the solver finishes)
+    fails like one that goes unstable: its row keeps the previous fraction's values, the
+    table stays finite, and the law is listed as unstable. Before, its log made the table
+    NaN and discovery stopped (a FElupe-made travel-offset campaign, layer D at alpha 10)."""
+    from types import SimpleNamespace
+
+    from calib.fit import CurveKey
+    from solver import SolverInstability
+
+    levels = np.linspace(0.02, 0.30, 15)
+    collapsing, unstable = (-6.0, 0.35), (10.0, 0.6)
+
+    def curve_at_strain(key, strain):
+        a2 = key.alpha[-1] if len(key.alpha) > 1 else 0.0
+        r = key.fractions[-1] if len(key.fractions) > 1 else 0.0
+        if (a2, abs(r)) == unstable:
+            raise SolverInstability("inverted element", 10, 0.1, 1.0, 3)
+        f = strain * (1.0 + strain) * (1.0 + 0.1 * r)
+        return f - 1.0 * (strain > 0.27) if (a2, abs(r)) == collapsing else f
+
+    ctx = SimpleNamespace(
+        data=SimpleNamespace(levels=levels), grid_alphas=lambda offsets: [5.0],
+        base_key=lambda alpha: CurveKey(alpha=(float(alpha),), diameter_mm=38.0,
+                                        height_mm=24.0),
+        curve_at_strain=curve_at_strain)
+    effect = SecondOgdenTerm()
+    effect.prepare(ctx)
+    # with the larger fractions of the same alpha2, which are not solved
+    assert ctx.second_term_unstable == [(-6.0, 0.35), (-6.0, 0.6), (-6.0, 0.85), (10.0, 0.6),
+                                        (10.0, 0.85)]
+    negative, positive = ctx.second_term_tables[1][0]
+    assert np.isfinite(negative.values).all() and np.isfinite(positive.values).all()
+    # the collapsed fraction, and the unsolved larger one, keep the stable 0.15 row
+    np.testing.assert_array_equal(negative.values[0, 2], negative.values[0, 1])
+    np.testing.assert_array_equal(negative.values[0, 4], negative.values[0, 1])
+    assert np.all(negative.values[0, 1] != 0.0)
+
+
 def test_edges_beyond_which_an_effect_grows_are_told_from_null_and_unphysical_ones():
     """Effect.edge: the end of a search box where the effect would be larger (and the
     candidate is implausible for it), not where it vanishes or turns unphysical."""
