@@ -1620,6 +1620,96 @@ def _optimise(contexts, accepted: Model, effect: Effect, masks=None, start=None,
     return Model(accepted.effects + [effect], theta), fun
 
 
+def _effect_uncertainty(contexts, model: Model, index: int) -> dict:
+    r"""Standard errors of one effect's reported parameters, and their correlation.
+
+    From the curvature of the campaign's generalised chi-square in the effect's parameters
+    (every layer's mu, alpha and samples refitted at each point, the other effects held):
+    covariance :math:`2 H^{-1}`, the :math:`\Delta\chi^2 = 1` region of a quadratic
+    minimum, the noise model taken as known, carried to the reported parameters through
+    their Jacobian. The second differences are taken over one standard error (a first pass
+    over 1 % of the searched range sets it), so they see the chi-square where the interval
+    is read, not a kink of the tables nearer by; a step stops at the edge of the box. Where
+    the curvature is not positive (an edge, a flat ridge) the errors are ``nan``.
+
+    Returns
+    -------
+    dict
+        ``{"stderr": {name: float}, "correlation": float or None}`` (the correlation only
+        for two parameters).
+    """
+    effect = model.effects[index]
+    theta0 = np.asarray(model.theta[index], float)
+    bounds = np.array(effect.bounds, float)
+    k = len(theta0)
+    warm: dict = {}
+    cache: dict = {}
+
+    def chi2(theta):
+        key = tuple(np.round(theta, 12))
+        if key not in cache:
+            thetas = list(model.theta)
+            thetas[index] = tuple(float(t) for t in theta)
+            cache[key] = _campaign_fit(contexts, Model(model.effects, thetas), None, warm)[0]
+        return cache[key]
+
+    def hessian(h):
+        f0 = chi2(theta0)
+        hess = np.empty((k, k))
+        lo = np.maximum(theta0 - h, bounds[:, 0])
+        hi = np.minimum(theta0 + h, bounds[:, 1])
+        for i in range(k):
+            a, b = theta0.copy(), theta0.copy()
+            a[i], b[i] = lo[i], hi[i]
+            hm, hp = theta0[i] - lo[i], hi[i] - theta0[i]
+            if min(hm, hp) <= 0:
+                return None
+            hess[i, i] = 2.0 * ((chi2(b) - f0) / hp + (chi2(a) - f0) / hm) / (hm + hp)
+        for i in range(k):
+            for j in range(i + 1, k):
+                pts = []
+                for si, sj in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
+                    t = theta0.copy()
+                    t[i] = hi[i] if si > 0 else lo[i]
+                    t[j] = hi[j] if sj > 0 else lo[j]
+                    pts.append(chi2(t))
+                hess[i, j] = hess[j, i] = ((pts[0] - pts[1] - pts[2] + pts[3])
+                                           / ((hi[i] - lo[i]) * (hi[j] - lo[j])))
+        return hess
+
+    nan = {"stderr": {name: math.nan for name, v in effect.report(theta0).items()
+                      if isinstance(v, float)}, "correlation": None}
+    h = 0.01 * (bounds[:, 1] - bounds[:, 0])
+    cov = None
+    for _ in range(2):
+        hess = hessian(h)
+        if hess is None or not np.all(np.isfinite(hess)):
+            return nan
+        try:
+            cov = 2.0 * np.linalg.inv(hess)
+        except np.linalg.LinAlgError:
+            return nan
+        if np.any(np.diag(cov) <= 0):
+            return nan
+        h = np.minimum(np.sqrt(np.diag(cov)), 0.25 * (bounds[:, 1] - bounds[:, 0]))
+    # the reported parameters' Jacobian (e.g. the two-term law's alpha2 from its map)
+    rep0 = effect.report(theta0)
+    names = [n for n, v in rep0.items() if isinstance(v, float)]
+    jac = np.empty((len(names), k))
+    for j in range(k):
+        step = 1e-6 * (bounds[j, 1] - bounds[j, 0])
+        t = theta0.copy()
+        t[j] += step if t[j] + step <= bounds[j, 1] else -step
+        rep = effect.report(t)
+        jac[:, j] = [(rep[n] - rep0[n]) / (t[j] - theta0[j]) for n in names]
+    cov_rep = jac @ cov @ jac.T
+    stderr = {n: float(math.sqrt(max(cov_rep[i, i], 0.0))) for i, n in enumerate(names)}
+    corr = None
+    if len(names) == 2 and stderr[names[0]] > 0 and stderr[names[1]] > 0:
+        corr = float(cov_rep[0, 1] / (stderr[names[0]] * stderr[names[1]]))
+    return {"stderr": stderr, "correlation": corr}
+
+
 def _scan_grid(effect: Effect) -> np.ndarray:
     """Coarse scan of a one-parameter effect's box, sorted.
 
@@ -2100,6 +2190,9 @@ class DiscoveryResult:
     n_solves: int
     #: doubts about the name (:func:`beyond_range_warning`), one per round that has one
     warnings: list = dataclasses.field(default_factory=list)
+    #: each accepted effect's ``{"stderr": {parameter: float}, "correlation": float | None}``
+    #: (:func:`_effect_uncertainty`)
+    uncertainty: dict = dataclasses.field(default_factory=dict)
 
     def parameter_table(self, nu: float = 0.499):
         """Per-layer parameters of the final model as a ``parameters.csv`` table.
@@ -2150,6 +2243,7 @@ class DiscoveryResult:
             "warnings": self.warnings,
             "parameters": {e.name: e.report(t) for e, t in zip(self.model.effects,
                                                               self.model.theta)},
+            "uncertainty": self.uncertainty,
             "rounds": [[c.to_dict() for c in r] for r in self.rounds],
             "heldout_rms_before_N": {k: v["rms_N"] for k, v in self.heldout_before.items()},
             "heldout_rms_after_N": {k: v["rms_N"] for k, v in self.heldout_after.items()},
@@ -2862,6 +2956,16 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
         heldout_current = _heldout(contexts, accepted_of_training, folds)
         log(f"discover: accepted {best.effect} {best.parameters}")
 
+    # each accepted effect's standard errors, the others held, under the final noise model
+    uncertainty = {}
+    for i, e in enumerate(accepted.effects):
+        uncertainty[e.name] = _effect_uncertainty(contexts, accepted, i)
+        log(f"discover: {e.name} " + ", ".join(
+            f"{k} = {v:.4g} +- {uncertainty[e.name]['stderr'].get(k, math.nan):.2g}"
+            for k, v in e.report(accepted.theta[i]).items() if isinstance(v, float))
+            + ("" if uncertainty[e.name]["correlation"] is None
+               else f" (correlation {uncertainty[e.name]['correlation']:+.3f})"))
+
     # the gap before and after, with direct FE solves of the accepted model
     _, fits_after = _campaign_fit(contexts, accepted)
     per_layer = {}
@@ -2932,6 +3036,7 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
         heldout_after=heldout_current, per_layer=per_layer, base_fits=base.fits,
         model=accepted, predictions=predictions, failed_layers=dict(base.failed),
         thresholds=thresholds, wall_s=time.perf_counter() - start, warnings=warnings,
+        uncertainty=uncertainty,
         n_solves=(forward.n_solves + grid_solves
                   + sum(f.n_solves for f in base.fits.values())))
 
@@ -3117,9 +3222,15 @@ def discovery_markdown(result: DiscoveryResult) -> str:
     lines += [f"> Warning: {w}" for w in result.warnings] + ([""] if result.warnings else [])
     if result.model.effects:
         for e, t in zip(result.model.effects, result.model.theta):
-            params = ", ".join(f"{k} = {v:.4g}" for k, v in e.report(t).items())
-            lines.append(f"- {e.name}: {params}")
-        lines.append("")
+            u = result.uncertainty.get(e.name, {"stderr": {}, "correlation": None})
+            params = ", ".join(f"{k} = {v:.4g}" + (f" +- {u['stderr'][k]:.2g}"
+                                                   if k in u["stderr"] else "")
+                               for k, v in e.report(t).items())
+            corr = ("" if u["correlation"] is None
+                    else f" (correlation {u['correlation']:+.2f})")
+            lines.append(f"- {e.name}: {params}{corr}")
+        lines += ["", "(+- one standard error from the curvature of the generalised "
+                  "chi-square, every layer refitted, the noise model taken as known.)", ""]
     lines += [
         f"RMS gap, all cycles: {1e3 * result.rms_before_N:.2f} mN before, "
         f"{1e3 * result.rms_after_N:.2f} mN after (direct FE solves; fast model "

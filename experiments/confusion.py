@@ -103,6 +103,7 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
         "heldout_systematic_after": {k: v["systematic"]
                                      for k, v in result.heldout_after.items()},
         "named_unthresholded": result.effect,
+        "uncertainty": result.uncertainty,
         "n_cycles": len(campaign.cycles),
         "named": named,
         "also_possible": also_possible,
@@ -113,6 +114,15 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
         shutil.copytree(folder, keep / f"{scenario}_{seed}", dirs_exist_ok=True)
     shutil.rmtree(tmp, ignore_errors=True)
     return record
+
+
+def stderr(record: dict) -> str:
+    """The standard errors of the unthresholded pick's parameters, as the summary gives them."""
+    u = record.get("uncertainty", {}).get(record["scenario"])
+    if not u or record["named_unthresholded"] != record["scenario"]:
+        return ""
+    corr = "" if u["correlation"] is None else f", correlation {u['correlation']:+.2f}"
+    return " +- " + ", ".join(f"{k} {v:.2g}" for k, v in u["stderr"].items()) + corr
 
 
 def reading(record: dict) -> str:
@@ -228,7 +238,7 @@ def summarise(records: list[dict]) -> str:
             named = r["named"] + (f" (equally possible: {', '.join(also)})" if also else "")
             lines.append(f"- {r['scenario']} seed {r['seed']}: named {named}; true effect "
                          f"{c['delta_bic'] / r['n_cycles']:.1f}/cycle, gain {gain:+.3f}, "
-                         f"{c['parameters']} (truth {r['truth']}{reading(r)}); RMS gap "
+                         f"{c['parameters']}{stderr(r)} (truth {r['truth']}{reading(r)}); RMS gap "
                          f"(mN) fitted "
                          f"{1e3 * r['rms_before_N']:.1f} -> {1e3 * r['rms_after_N']:.1f}, "
                          f"held out {held}; each sample at its own mu, alpha: fitted "

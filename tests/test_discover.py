@@ -140,6 +140,45 @@ def test_a_two_term_law_that_collapses_or_goes_unstable_is_ruled_out_not_tabulat
     assert np.all(negative.values[0, 1] != 0.0)
 
 
+def test_effect_standard_errors_are_the_curvature_of_the_chi_square(monkeypatch):
+    """On a chi-square that is exactly quadratic in the effect's internal parameters, the
+    standard errors are those of 2 H^-1 carried through the reported parameters' Jacobian
+    (the Prony term reports g1 = gamma / (1 + gamma) and tau1 = exp(ln tau)); a minimum on the
+    edge of the box, or a chi-square without curvature, gives nan."""
+    import calib.discover as D
+
+    effect = make_effect("rate_dependence")
+    theta0 = np.array([0.8, math.log(0.5)])
+    hess = np.array([[800.0, -150.0], [-150.0, 60.0]])
+
+    def quadratic(contexts, model, masks=None, warm=None):
+        d = np.asarray(model.theta[-1], float) - theta0
+        return 100.0 + 0.5 * d @ hess @ d, {}
+
+    monkeypatch.setattr(D, "_campaign_fit", quadratic)
+    u = D._effect_uncertainty([], D.Model([effect], [tuple(theta0)]), 0)
+    cov = 2.0 * np.linalg.inv(hess)
+    jac = np.diag([1.0 / (1.0 + theta0[0]) ** 2, math.exp(theta0[1])])  # d(g1, tau1)/d theta
+    cov_rep = jac @ cov @ jac.T
+    assert u["stderr"]["g1"] == pytest.approx(math.sqrt(cov_rep[0, 0]), rel=1e-4)
+    assert u["stderr"]["tau1_s"] == pytest.approx(math.sqrt(cov_rep[1, 1]), rel=1e-4)
+    assert u["correlation"] == pytest.approx(
+        cov_rep[0, 1] / math.sqrt(cov_rep[0, 0] * cov_rep[1, 1]), rel=1e-4)
+
+    offset = make_effect("contact_offset")
+    theta0 = np.array([offset.bounds[0][1]])  # at the edge
+    hess = np.array([[4.0e4]])
+    assert math.isnan(D._effect_uncertainty([], D.Model([offset], [(theta0[0],)]), 0)
+                      ["stderr"]["offset_mm"])
+    theta0 = np.array([0.1])
+    u = D._effect_uncertainty([], D.Model([offset], [(0.1,)]), 0)
+    assert u["stderr"]["offset_mm"] == pytest.approx(math.sqrt(2.0 / 4.0e4), rel=1e-6)
+    assert u["correlation"] is None
+    hess = np.array([[0.0]])
+    assert math.isnan(D._effect_uncertainty([], D.Model([offset], [(0.1,)]), 0)
+                      ["stderr"]["offset_mm"])
+
+
 def test_edges_beyond_which_an_effect_grows_are_told_from_null_and_unphysical_ones():
     """Effect.edge: the end of a search box where the effect would be larger (and the
     candidate is implausible for it), not where it vanishes or turns unphysical."""
@@ -228,6 +267,9 @@ def test_hidden_preconditioning_is_named_and_recovered():
     assert result.effect == "preconditioning"
     params = result.to_dict()["parameters"]["preconditioning"]
     assert params["softening"] == pytest.approx(0.08, abs=0.015)
+    # its standard error covers the truth (3 errors: a 0.3 % chance of failing if calibrated)
+    se = result.uncertainty["preconditioning"]["stderr"]["softening"]
+    assert 0.0 < se < 0.015 and abs(params["softening"] - 0.08) < 3.0 * se, se
     for kind in result.heldout_before:
         assert result.heldout_after[kind]["rms_N"] < 0.5 * result.heldout_before[kind]["rms_N"]
     assert result.rms_after_N < 0.5 * result.rms_before_N
