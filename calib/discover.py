@@ -2199,7 +2199,9 @@ class DiscoveryResult:
 
         ``model`` is ``ogden`` (``ogden2`` with a second term, ``+prony1`` with a Prony
         series); effect parameters that are not material constants (``friction``,
-        ``offset_mm``, ``compliance_mm_per_N``, ``softening``) are extra columns.
+        ``offset_mm``, ``compliance_mm_per_N``, ``softening``) are extra columns, and so is
+        every effect parameter's standard error (``g1_stderr``, ``nu_stderr``, ...; see
+        :func:`_effect_uncertainty`), the same for every layer: the effects are the campaign's.
         """
         import pandas as pd
 
@@ -2224,6 +2226,9 @@ class DiscoveryResult:
             for name in ("platen_slip", "contact_offset", "machine_compliance",
                          "preconditioning"):
                 row.update(effects.get(name, {}))
+            for name in effects:
+                stderr = self.uncertainty.get(name, {}).get("stderr", {})
+                row.update({f"{k}_stderr": v for k, v in stderr.items()})
             rows.append(row)
         return pd.DataFrame(rows)
 

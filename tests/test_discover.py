@@ -270,6 +270,7 @@ def test_hidden_preconditioning_is_named_and_recovered():
     # its standard error covers the truth (3 errors: a 0.3 % chance of failing if calibrated)
     se = result.uncertainty["preconditioning"]["stderr"]["softening"]
     assert 0.0 < se < 0.015 and abs(params["softening"] - 0.08) < 3.0 * se, se
+    assert result.parameter_table()["softening_stderr"].tolist() == [se, se]
     for kind in result.heldout_before:
         assert result.heldout_after[kind]["rms_N"] < 0.5 * result.heldout_before[kind]["rms_N"]
     assert result.rms_after_N < 0.5 * result.rms_before_N
