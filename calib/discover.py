@@ -180,6 +180,11 @@ RETABULATE_ALPHA = 0.2
 #: its optimum on the edge of the box for the interior point to be taken (about two standard
 #: errors of one parameter's profile); see :func:`_fit_effect`.
 RIDGE_CHI2 = 4.0
+#: Above this correlation of a two-parameter effect's estimates the report says they lie on a
+#: ridge: the generated two-term law's (alpha2, fraction2) came out -2.91 +- 0.36 and
+#: -0.617 +- 0.054, correlation -0.985, with the truth (-4, -0.5) 31 units of the quadratic
+#: approximation away but a few units of chi-square along the curved ridge (see _fit_effect)
+RIDGE_CORRELATION = 0.95
 #: Tabulations of a leading candidate at its fitted alphas (the first also solves the effect's
 #: discretisation correction at its parameters). A second Ogden term moves alpha furthest:
 #: on the generated two-term campaign the polish after the first moved layer D's alpha from
@@ -3233,6 +3238,9 @@ def discovery_markdown(result: DiscoveryResult) -> str:
                                for k, v in e.report(t).items())
             corr = ("" if u["correlation"] is None
                     else f" (correlation {u['correlation']:+.2f})")
+            if u["correlation"] is not None and abs(u["correlation"]) > RIDGE_CORRELATION:
+                corr += ("; the data trade the two along a ridge, which these errors measure "
+                         "across but not along where it curves")
             lines.append(f"- {e.name}: {params}{corr}")
         lines += ["", "(+- one standard error from the curvature of the generalised "
                   "chi-square, every layer refitted, the noise model taken as known.)", ""]
