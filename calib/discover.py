@@ -3243,7 +3243,10 @@ def discovery_markdown(result: DiscoveryResult) -> str:
                          "across but not along where it curves")
             lines.append(f"- {e.name}: {params}{corr}")
         lines += ["", "(+- one standard error from the curvature of the generalised "
-                  "chi-square, every layer refitted, the noise model taken as known.)", ""]
+                  "chi-square, every layer refitted, the noise model taken as known: the "
+                  "data's scatter, not the model's own error, the fitting mesh's and the "
+                  "tables'. On generated campaigns with a strong effect that error was the "
+                  "larger: tau1 0.586 +- 0.004 s against a truth of 0.5 s.)", ""]
     lines += [
         f"RMS gap, all cycles: {1e3 * result.rms_before_N:.2f} mN before, "
         f"{1e3 * result.rms_after_N:.2f} mN after (direct FE solves; fast model "
