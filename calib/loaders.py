@@ -1306,9 +1306,11 @@ def _branch(t, d, f, lines):
         # a toe: the force rose for good before the back-extrapolated contact (a domed or
         # tilted face, slack). Travel is measured from that contact, the toe-compensated zero
         # of ASTM practice (D695), which a noise-free curve's reading shares
-        # (contact_fit_bias); the toe is trimmed, and the tare is read before it
+        # (contact_fit_bias); the toe is trimmed, and the tare and noise are read before it
         i_toe = i_thr
         tare = float(np.median(F[:i_toe]))
+        if i_toe >= _MIN_APPROACH_NOISE:
+            sigma = max(_mad_sigma(F[:i_toe]), _floor(F))
 
     if i_c >= _MIN_APPROACH:
         j = i_c

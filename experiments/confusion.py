@@ -66,7 +66,7 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
     # where the loader read each contact, after the full face's (mm): a travel offset's
     # truth as the fit sees it is minus their mean (a toe is compensated by the loader)
     full_face = {Path(c["file"]).name: c["contact_mm"] for c in truth["cycles"]}
-    reading = [c.contact_mm - full_face[Path(c.file).name] for c in campaign.cycles]
+    readings = [c.contact_mm - full_face[Path(c.file).name] for c in campaign.cycles]
     t_gen = time.perf_counter() - start
     # thresholds off: every plausible leading candidate gets its held-out check
     levels = tuple(v for v in DEFAULT_LEVELS if max_level is None or v <= max_level + 1e-9)
@@ -84,8 +84,8 @@ def run_one(scenario: str, seed: int, layers: list[str], fast: bool, magnitude: 
         "magnitude": magnitude, "truth_code": truth_code, "axial_ratio": axial_ratio,
         "contact_noise": contact_noise, "levels": list(levels),
         "truth": truth["scenario"].get("parameters", {}),
-        "contact_reading_mm": {"mean": float(np.mean(reading)),
-                               "sd": float(np.std(reading, ddof=1))},
+        "contact_reading_mm": {"mean": float(np.mean(readings)),
+                               "sd": float(np.std(readings, ddof=1))},
         "candidates": candidates,
         "rms_before_N": result.rms_before_N, "rms_after_N": result.rms_after_N,
         "heldout_before": {k: v["rms_N"] for k, v in result.heldout_before.items()},
