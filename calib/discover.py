@@ -2193,7 +2193,8 @@ class DiscoveryResult:
     thresholds: dict
     wall_s: float
     n_solves: int
-    #: doubts about the name (:func:`beyond_range_warning`), one per round that has one
+    #: doubts about the name (:func:`beyond_range_warning`), one per round that has one, and
+    #: what the loader's toe compensation took out of the data (:func:`toe_warning`)
     warnings: list = dataclasses.field(default_factory=list)
     #: each accepted effect's ``{"stderr": {parameter: float}, "correlation": float | None}``
     #: (:func:`_effect_uncertainty`)
@@ -2897,6 +2898,10 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
     rounds = []
     also_possible = []
     warnings = []
+    toes = toe_warning(campaign.cycles)
+    if toes:
+        log(f"discover: warning: {toes}")
+        warnings.append(toes)
     folds = _folds(contexts)
     def current_of_training(masks):
         return Model([], [])
@@ -3049,6 +3054,25 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
         uncertainty=uncertainty,
         n_solves=(forward.n_solves + grid_solves
                   + sum(f.n_solves for f in base.fits.values())))
+
+
+def toe_warning(cycles) -> str:
+    """What the loader's toe compensation took out of the data, or ``""`` if it took nothing.
+
+    A toe (:mod:`calib.loaders`, step 8) is a contact effect the loader has already
+    compensated: travel is measured from the toe-compensated zero, and a travel offset is
+    judged on what that zero misses. A small toe can leave nothing to find (the generated
+    domed face at half the moderate magnitude: read 2.3 um before the full face, named none),
+    so the workflow says so here rather than nowhere.
+    """
+    toed = [c for c in cycles if any(s.kind == "toe" for s in getattr(c, "trimmed", ()))]
+    if not toed:
+        return ""
+    files = ", ".join(c.file for c in toed[:5]) + (", ..." if len(toed) > 5 else "")
+    return (f"the loader compensated a toe (the force rising gradually before the contact it "
+            f"back-extrapolates: a domed or tilted face, slack) in {len(toed)} of "
+            f"{len(cycles)} cycles ({files}); travel is measured from the toe-compensated "
+            f"contact, and contact_offset is judged on what that leaves")
 
 
 def beyond_range_warning(candidates, named: Candidate | None, limit: float,

@@ -239,6 +239,32 @@ def test_a_candidate_at_the_edge_that_gains_more_than_the_named_effect_is_warned
     assert beyond_range_warning([small, named], named, limit) == ""
 
 
+def test_toes_the_loader_compensated_are_reported(tmp_path):
+    """A campaign whose logs have toes: discovery says how many cycles the loader compensated
+    (a contact effect taken out before the fit); one without says nothing."""
+    from types import SimpleNamespace
+
+    from calib.discover import toe_warning
+    from calib.loaders import Span, load_cycle
+
+    from .test_loaders import META, make_truth, ogden_force, write_log
+
+    tr = make_truth(seed=1, noise=0.001)
+    s = np.clip(tr.d - 0.8, 0.0, None)  # travel from the touch; full face 0.3 mm later
+    tr.f = ogden_force(np.where(s < 0.6, s * s / 1.2, s - 0.3)) + tr.f - ogden_force(tr.d - 0.8)
+    toed = load_cycle(write_log(tmp_path / "A1_t1_0.83mms.csv", tr, meta=META))
+    plain = load_cycle(write_log(tmp_path / "A1_t2_0.83mms.csv", make_truth(seed=2),
+                                 meta={**META, "test": 1}))
+    assert "toe" in [s.kind for s in toed.trimmed]
+    text = toe_warning([toed, plain])
+    assert "1 of 2 cycles" in text and "A1_t1_0.83mms.csv" in text
+    assert toe_warning([plain]) == ""
+    # cycles made in memory (no spans) are allowed
+    assert toe_warning([SimpleNamespace(file="x")]) == ""
+    many = [SimpleNamespace(file=f"c{i}", trimmed=(Span("toe", 0.0, 1.0, 3),)) for i in range(7)]
+    assert "7 of 7 cycles (c0, c1, c2, c3, c4, ...)" in toe_warning(many)
+
+
 def _preconditioned_layer(layer, mu, alpha, softening, geometries, rng):
     """Three samples x three rates in a varied test order, simulated on a mesh twice as fine
     as the fitting mesh, 2 mN noise."""
