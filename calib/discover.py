@@ -1682,10 +1682,10 @@ def _effect_uncertainty(contexts, model: Model, index: int) -> dict:
                                            / ((hi[i] - lo[i]) * (hi[j] - lo[j])))
         return hess
 
-    nan = {"stderr": {name: math.nan for name, v in effect.report(theta0).items()
-                      if isinstance(v, float)}, "correlation": None}
+    rep0 = effect.report(theta0)
+    names = [n for n, v in rep0.items() if isinstance(v, float)]
+    nan = {"stderr": dict.fromkeys(names, math.nan), "correlation": None}
     h = 0.01 * (bounds[:, 1] - bounds[:, 0])
-    cov = None
     for _ in range(2):
         hess = hessian(h)
         if hess is None or not np.all(np.isfinite(hess)):
@@ -1698,8 +1698,6 @@ def _effect_uncertainty(contexts, model: Model, index: int) -> dict:
             return nan
         h = np.minimum(np.sqrt(np.diag(cov)), 0.25 * (bounds[:, 1] - bounds[:, 0]))
     # the reported parameters' Jacobian (e.g. the two-term law's alpha2 from its map)
-    rep0 = effect.report(theta0)
-    names = [n for n, v in rep0.items() if isinstance(v, float)]
     jac = np.empty((len(names), k))
     for j in range(k):
         step = 1e-6 * (bounds[j, 1] - bounds[j, 0])
@@ -1713,6 +1711,14 @@ def _effect_uncertainty(contexts, model: Model, index: int) -> dict:
     if len(names) == 2 and stderr[names[0]] > 0 and stderr[names[1]] > 0:
         corr = float(cov_rep[0, 1] / (stderr[names[0]] * stderr[names[1]]))
     return {"stderr": stderr, "correlation": corr}
+
+
+def _with_errors(parameters: dict, uncertainty: dict | None) -> str:
+    """``name = value +- stderr, ...`` and the correlation of two, as log and report give them."""
+    u = uncertainty or {"stderr": {}, "correlation": None}
+    text = ", ".join(f"{k} = {v:.4g}" + (f" +- {u['stderr'][k]:.2g}" if k in u["stderr"] else "")
+                     for k, v in parameters.items())
+    return text + ("" if u["correlation"] is None else f" (correlation {u['correlation']:+.2f})")
 
 
 def _scan_grid(effect: Effect) -> np.ndarray:
@@ -2975,11 +2981,8 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
     uncertainty = {}
     for i, e in enumerate(accepted.effects):
         uncertainty[e.name] = _effect_uncertainty(contexts, accepted, i)
-        log(f"discover: {e.name} " + ", ".join(
-            f"{k} = {v:.4g} +- {uncertainty[e.name]['stderr'].get(k, math.nan):.2g}"
-            for k, v in e.report(accepted.theta[i]).items() if isinstance(v, float))
-            + ("" if uncertainty[e.name]["correlation"] is None
-               else f" (correlation {uncertainty[e.name]['correlation']:+.3f})"))
+        log(f"discover: {e.name} "
+            f"{_with_errors(e.report(accepted.theta[i]), uncertainty[e.name])}")
 
     # the gap before and after, with direct FE solves of the accepted model
     _, fits_after = _campaign_fit(contexts, accepted)
@@ -3256,16 +3259,12 @@ def discovery_markdown(result: DiscoveryResult) -> str:
     lines += [f"> Warning: {w}" for w in result.warnings] + ([""] if result.warnings else [])
     if result.model.effects:
         for e, t in zip(result.model.effects, result.model.theta):
-            u = result.uncertainty.get(e.name, {"stderr": {}, "correlation": None})
-            params = ", ".join(f"{k} = {v:.4g}" + (f" +- {u['stderr'][k]:.2g}"
-                                                   if k in u["stderr"] else "")
-                               for k, v in e.report(t).items())
-            corr = ("" if u["correlation"] is None
-                    else f" (correlation {u['correlation']:+.2f})")
-            if u["correlation"] is not None and abs(u["correlation"]) > RIDGE_CORRELATION:
-                corr += ("; the data trade the two along a ridge, which these errors measure "
-                         "across but not along where it curves")
-            lines.append(f"- {e.name}: {params}{corr}")
+            u = result.uncertainty.get(e.name)
+            ridge = ("; the data trade the two along a ridge, which these errors measure "
+                     "across but not along where it curves"
+                     if u and u["correlation"] is not None
+                     and abs(u["correlation"]) > RIDGE_CORRELATION else "")
+            lines.append(f"- {e.name}: {_with_errors(e.report(t), u)}{ridge}")
         lines += ["", "(+- one standard error from the curvature of the generalised "
                   "chi-square, every layer refitted, the noise model taken as known: the "
                   "data's scatter, not the model's own error, the fitting mesh's and the "
