@@ -155,6 +155,9 @@ TOP_CANDIDATES = 3
 #: smallest by more than this fraction ranks a candidate behind; within it, the better
 #: prediction of held-out data decides (see :func:`rank_near_ties`).
 SYSTEMATIC_CLEAR = 0.10
+
+#: Kinds of held-out data (:func:`_folds`): leave one rate out, leave one sample out.
+FOLD_KINDS = ("rate", "sample")
 #: Travel (mm) past the touch at which a level read before the touch is read instead.
 JUST_AFTER_TOUCH_MM = 1e-3
 #: A candidate that passes the information criterion but gains less than this fraction of the
@@ -1952,23 +1955,51 @@ def _split(flat, accepted: Model, effect: Effect):
 
 
 # ============================================================================ held-out folds
+def fold_kinds_missing(contexts) -> dict:
+    """Kinds of held-out fold the campaign cannot make, with why: {kind: reason}.
+
+    Holding out a rate predicts it from a layer's other rates, holding out a sample from the
+    layer's other samples: a kind needs a layer tested at two rates (``"rate"``) or with two
+    samples (``"sample"``). A campaign at one rate, or of one sample per layer, has only the
+    other kind; with neither, held-out prediction cannot be judged.
+    """
+    missing = {}
+    if all(len(ctx.rates) < 2 for ctx in contexts):
+        rates = sorted({r for ctx in contexts for r in ctx.rates})
+        missing["rate"] = ("every layer was tested at one rate ("
+                           + ", ".join(f"{r:g}" for r in rates) + " mm/s)")
+    if all(len(ctx.data.samples) < 2 for ctx in contexts):
+        missing["sample"] = ("every layer has one sample ("
+                             + ", ".join(f"{ctx.layer}: {ctx.data.samples[0]}"
+                                         for ctx in contexts if ctx.data.samples) + ")")
+    return missing
+
+
 def _folds(contexts):
-    """Leave-one-rate-out and leave-one-sample-out masks: {kind: [(label, masks)]}."""
-    rates = sorted({r for ctx in contexts for r in ctx.rates})
-    loro = []
-    for r in rates:
-        loro.append((f"rate {r:g} mm/s", {ctx.layer: ~np.isclose(ctx.rate, r)
-                                           for ctx in contexts}))
-    n_samples = max(len(ctx.data.samples) for ctx in contexts)
-    loso = []
-    for k in range(n_samples):
-        masks = {}
-        for ctx in contexts:
-            samples = ctx.data.samples
-            held = samples[k] if k < len(samples) else None
-            masks[ctx.layer] = ctx.sample != held
-        loso.append((f"sample #{k + 1} of every layer", masks))
-    return {"rate": loro, "sample": loso}
+    """Leave-one-rate-out and leave-one-sample-out masks: {kind: [(label, masks)]}.
+
+    Only the kinds the campaign can make (:func:`fold_kinds_missing`). In a fold, a layer
+    with nothing left to train on (a layer of one rate or one sample among others of more)
+    is not refitted and its held-out points are not judged in that kind.
+    """
+    missing = fold_kinds_missing(contexts)
+    out = {}
+    if "rate" not in missing:
+        rates = sorted({r for ctx in contexts for r in ctx.rates})
+        out["rate"] = [(f"rate {r:g} mm/s", {ctx.layer: ~np.isclose(ctx.rate, r)
+                                              for ctx in contexts}) for r in rates]
+    if "sample" not in missing:
+        n_samples = max(len(ctx.data.samples) for ctx in contexts)
+        loso = []
+        for k in range(n_samples):
+            masks = {}
+            for ctx in contexts:
+                samples = ctx.data.samples
+                held = samples[k] if k < len(samples) else None
+                masks[ctx.layer] = ctx.sample != held
+            loso.append((f"sample #{k + 1} of every layer", masks))
+        out["sample"] = loso
+    return out
 
 
 def _systematic(ctx: LayerContext, predicted: np.ndarray) -> tuple[float, int]:
@@ -2891,6 +2922,13 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
     forward = ForwardModel.for_settings(settings)
     contexts = [LayerContext(base.fits[k], forward, settings) for k in sorted(base.fits)]
     n_cycles = sum(len(ctx.data.cycles) for ctx in contexts)
+    # before the effect grids, the costly part
+    missing = fold_kinds_missing(contexts)
+    if len(missing) == len(FOLD_KINDS):
+        raise ValueError(
+            "held-out prediction, one of the checks an effect must pass, cannot be judged: "
+            + "; ".join(missing.values()) + ". Discovery needs a layer tested at two rates or "
+            "with two samples")
     candidates_all = [make_effect(name) for name in effects]
 
     grid_solves = _prepare(contexts, settings, effects, None, workers, scheduler, progress)
@@ -2908,6 +2946,11 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
     if toes:
         log(f"discover: warning: {toes}")
         warnings.append(toes)
+    for kind, why in missing.items():
+        text = (f"no leave-one-{kind}-out prediction: {why}; candidates are judged on the other "
+                f"kind of held-out data alone (the thresholds were calibrated with both)")
+        log(f"discover: warning: {text}")
+        warnings.append(text)
     folds = _folds(contexts)
     def current_of_training(masks):
         return Model([], [])

@@ -579,6 +579,63 @@ def test_discover_cli_usage_errors(tmp_path, capsys):
         assert f"{flag} {value}: {reason}" in capsys.readouterr().err
 
 
+def _fold_context(layer, rates, samples):
+    """A stand-in of a LayerContext for the folds: one point per (rate, sample)."""
+    from types import SimpleNamespace
+
+    rate = np.repeat(np.asarray(rates, float), len(samples))
+    sample = np.tile(np.asarray(samples), len(rates))
+    return SimpleNamespace(layer=layer, rate=rate, sample=sample,
+                           rates=sorted({round(r, 6) for r in rate}),
+                           data=SimpleNamespace(samples=list(samples)))
+
+
+def test_folds_are_the_kinds_the_campaign_can_make():
+    from calib.discover import _folds, fold_kinds_missing
+
+    full = [_fold_context("A", RATES, ["A1", "A2", "A3"])]
+    assert fold_kinds_missing(full) == {}
+    assert [len(v) for v in _folds(full).values()] == [3, 3]
+    # one rate: no leave-one-rate-out (it would leave nothing to train on), samples still
+    one_rate = [_fold_context("A", [0.83], ["A1", "A2", "A3"])]
+    assert list(fold_kinds_missing(one_rate)) == ["rate"]
+    assert "one rate (0.83 mm/s)" in fold_kinds_missing(one_rate)["rate"]
+    folds = _folds(one_rate)
+    assert list(folds) == ["sample"]
+    for _, masks in folds["sample"]:
+        assert masks["A"].any() and not masks["A"].all()  # trains on two, holds one out
+    # one sample per layer, two layers: rates only
+    one_sample = [_fold_context("A", RATES, ["A1"]), _fold_context("B", RATES, ["B2"])]
+    assert list(_folds(one_sample)) == ["rate"]
+    assert "(A: A1, B: B2)" in fold_kinds_missing(one_sample)["sample"]
+    # a layer of one sample beside one of two: the kind exists, the lone layer is not trained
+    mixed = [_fold_context("A", RATES, ["A1"]), _fold_context("B", RATES, ["B1", "B2"])]
+    first = _folds(mixed)["sample"][0][1]
+    assert not first["A"].any() and first["B"].any() and not first["B"].all()
+    assert fold_kinds_missing([_fold_context("A", [0.17], ["A1"])]).keys() == {"rate", "sample"}
+
+
+def test_discover_says_why_held_out_prediction_cannot_be_judged(tmp_path, capsys):
+    """Two tests of one sample at one rate: discovery fails before its grids, saying why."""
+    from calib.cli import main
+
+    source = Path(__file__).parent.parent / "experiments" / "campaign" / "A"
+    layer = tmp_path / "data" / "A"
+    layer.mkdir(parents=True)
+    shutil.copy(source / "A1_t1_0.17mms.csv", layer)
+    text = (source / "A2_t2_0.17mms.csv").read_text(encoding="utf-8")
+    assert "# sample: A2\n" in text and "# test: 2\n" in text
+    (layer / "A1_t4_0.17mms.csv").write_text(
+        text.replace("# sample: A2\n", "# sample: A1\n").replace("# test: 2\n", "# test: 4\n"),
+        encoding="utf-8")
+    out = tmp_path / "report"
+    assert main(["discover", str(tmp_path / "data"), "--out", str(out), "--workers", "1"]) == 1
+    err = capsys.readouterr().err
+    assert "held-out prediction" in err and "cannot be judged" in err
+    assert "one rate (0.17 mm/s)" in err and "one sample (A: A1)" in err
+    assert not out.exists()
+
+
 def test_discover_cli_passes_its_settings(tmp_path, monkeypatch):
     """--contact-noise, --max-level and --axial-ratio reach the workflow's FitSettings (the
     workflow itself replaced: it fails, so no report is written)."""
