@@ -160,6 +160,47 @@ SYSTEMATIC_CLEAR = 0.10
 FOLD_KINDS = ("rate", "sample")
 #: Travel (mm) past the touch at which a level read before the touch is read instead.
 JUST_AFTER_TOUCH_MM = 1e-3
+
+
+class UnphysicalSolve(SolverInstability):
+    """A solve that ran to its end but whose platen force is no quasi-static compression curve.
+
+    A compression force that is not positive at a compared level: the explicit run rang there
+    (seen: a finer-mesh Coulomb solve of a 29.9 x 15.1 mm sample at friction 0.3, alpha 2.7,
+    whose side landed on the platen at 27.5 % strain; the force swung between -2.5e-3 and
+    3.0e-3 N/Pa about 1.05e-3 while the kinetic energy stayed below 1 % of the internal).
+    Handled where a :class:`SolverInstability` is: the table or candidate that needed it is
+    not used.
+    """
+
+    def __init__(self, message: str):
+        RuntimeError.__init__(self, message)
+        self.reason, self.step, self.time_s, self.travel_mm, self.element = (
+            message, None, math.nan, math.nan, None)
+
+    def __reduce__(self):
+        return (type(self), (str(self),))
+
+
+def _checked_force(force, key, travel_mm, mesh_scale=None) -> np.ndarray:
+    """``force`` (N/Pa) of the solve ``key`` at ``travel_mm``, if finite and positive.
+
+    Raises :class:`UnphysicalSolve`, naming the solve and the travel, otherwise.
+    """
+    force = np.asarray(force, dtype=float)
+    bad = ~(np.isfinite(force) & (force > 0.0))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        d = float(np.broadcast_to(travel_mm, force.shape)[i])
+        friction = f" friction {key.friction:g}," if key.platen == "coulomb" else ""
+        raise UnphysicalSolve(
+            f"the {key.platen}{friction} alpha {key.alpha[0]:.3f}, nu {key.nu:g} solve of a "
+            f"{key.diameter_mm:g} x {key.height_mm:g} mm sample"
+            + ("" if mesh_scale is None else f" on the mesh {mesh_scale:g} times finer")
+            + f" gives a platen force of {force[i]:.3g} N/Pa at {d:.3f} mm travel "
+            f"({100 * d / key.height_mm:.1f} % strain): a compression force must be positive "
+            f"(the run rang there)")
+    return force
 #: A candidate that passes the information criterion but gains less than this fraction of the
 #: best one's dBIC is refined, held out and checked by direct solves only if none of the
 #: better ones is accepted. The refinement at a candidate's own fitted alpha moved its dBIC by
@@ -425,8 +466,9 @@ class LayerContext:
         # the reading of a strongly stiffening curve can start it later than a level (at
         # alpha 15.4 the fit puts a bonded sample's contact 0.66 mm late, a compressible
         # one's 2 um early): such a level is read just after the touch, not before it
-        travel = np.asarray(strain) * key.height_mm + self.contact_shift(key)
-        return self.forward.unit_forces(key, np.maximum(travel, JUST_AFTER_TOUCH_MM))
+        travel = np.maximum(np.asarray(strain) * key.height_mm + self.contact_shift(key),
+                            JUST_AFTER_TOUCH_MM)
+        return _checked_force(self.forward.unit_forces(key, travel), key, travel)
 
     def contact_shift(self, key: CurveKey) -> float:
         """Travel (mm) from the touch to where the loader's contact fit starts a solve's curve.
@@ -2335,7 +2377,8 @@ def _mesh_rows(forward: ForwardModel, settings: FitSettings, effect: Effect, alp
     scale = settings.mesh_correction
 
     def ratio(key):
-        return np.log(forward.curve(key, scale)(travel) / forward.curve(key)(travel))
+        return np.log(_checked_force(forward.curve(key, scale)(travel), key, travel, scale)
+                      / _checked_force(forward.curve(key)(travel), key, travel))
 
     return np.array([np.zeros(len(travel)) if v == effect.reference else
                      ratio(key) - ratio(base) for v, key in keys.items()])
@@ -2929,9 +2972,25 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
             "held-out prediction, one of the checks an effect must pass, cannot be judged: "
             + "; ".join(missing.values()) + ". Discovery needs a layer tested at two rates or "
             "with two samples")
+    grid_warnings = []
+    try:
+        grid_solves = _prepare(contexts, settings, effects, None, workers, scheduler, progress)
+    except SolverInstability:
+        # an effect whose tables cannot be solved is left out, not the workflow: each alone
+        grid_solves, kept = 0, []
+        for name in effects:
+            try:
+                grid_solves += _prepare(contexts, settings, [name], None, workers, scheduler,
+                                        progress)
+                kept.append(name)
+            except SolverInstability as exc:
+                grid_warnings.append(f"{name} left out: its tables could not be solved ({exc})")
+                log(f"discover: warning: {grid_warnings[-1]}")
+        if not kept:
+            raise ValueError("no effect's tables could be solved: "
+                             + "; ".join(grid_warnings)) from None
+        effects = kept
     candidates_all = [make_effect(name) for name in effects]
-
-    grid_solves = _prepare(contexts, settings, effects, None, workers, scheduler, progress)
     log(f"discover: effect grids ready ({grid_solves} forward solves)")
     for ctx in contexts:
         pred = ctx.fit.predicted[ctx.data.valid]
@@ -2942,6 +3001,7 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
     rounds = []
     also_possible = []
     warnings = []
+    warnings += grid_warnings
     toes = toe_warning(campaign.cycles)
     if toes:
         log(f"discover: warning: {toes}")

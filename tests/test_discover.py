@@ -265,6 +265,51 @@ def test_toes_the_loader_compensated_are_reported(tmp_path):
     assert "7 of 7 cycles (c0, c1, c2, c3, c4, ...)" in toe_warning(many)
 
 
+def test_a_solve_whose_force_is_not_positive_is_unphysical_and_says_where():
+    import pickle
+
+    from calib.discover import UnphysicalSolve, _checked_force
+    from calib.fit import CurveKey
+    from solver import SolverInstability
+
+    key = CurveKey(alpha=(2.7,), diameter_mm=29.9, height_mm=15.1, platen="coulomb",
+                   friction=0.3)
+    np.testing.assert_array_equal(_checked_force([1e-3, 2e-3], key, [1.0, 2.0]), [1e-3, 2e-3])
+    for bad in (-2.5e-3, 0.0, math.nan):
+        with pytest.raises(SolverInstability) as info:
+            _checked_force([1e-3, bad], key, np.array([1.0, 4.1525]), 2.0)
+        text = str(info.value)
+        assert ("coulomb friction 0.3, alpha 2.700, nu 0.499 solve of a 29.9 x 15.1 mm sample "
+                "on the mesh 2 times finer") in text
+        assert "at 4.152 mm travel (27.5 % strain)" in text
+    again = pickle.loads(pickle.dumps(info.value))  # from worker processes
+    assert isinstance(again, UnphysicalSolve) and str(again) == text
+
+
+def test_an_effect_whose_tables_cannot_be_solved_is_left_out_with_a_warning(monkeypatch):
+    """Not the whole workflow: the other effects are judged, the report says what was left."""
+    import calib.discover as discover
+    from calib.demo import embedded_campaign_path
+    from calib.loaders import load_campaign
+
+    prepare = discover._prepare
+
+    def failing(contexts, settings, names, *args, **kwargs):
+        if "platen_slip" in names:
+            raise discover.UnphysicalSolve("the coulomb solve rang (a stand-in)")
+        return prepare(contexts, settings, names, *args, **kwargs)
+
+    monkeypatch.setattr(discover, "_prepare", failing)
+    campaign = load_campaign(embedded_campaign_path())
+    campaign = dataclasses.replace(campaign, cycles=tuple(
+        c for c in campaign.cycles if c.layer == "A"))
+    result = discover_campaign(campaign, effects=["preconditioning", "platen_slip"],
+                               workers=1, progress=False, log=lambda *a: None, max_rounds=1)
+    assert [c.effect for c in result.rounds[0]] == ["preconditioning"]
+    assert any("platen_slip left out: its tables could not be solved (the coulomb solve rang"
+               in w for w in result.warnings)
+
+
 def _preconditioned_layer(layer, mu, alpha, softening, geometries, rng):
     """Three samples x three rates in a varied test order, simulated on a mesh twice as fine
     as the fitting mesh, 2 mN noise."""
