@@ -155,52 +155,10 @@ TOP_CANDIDATES = 3
 #: smallest by more than this fraction ranks a candidate behind; within it, the better
 #: prediction of held-out data decides (see :func:`rank_near_ties`).
 SYSTEMATIC_CLEAR = 0.10
-
 #: Kinds of held-out data (:func:`_folds`): leave one rate out, leave one sample out.
 FOLD_KINDS = ("rate", "sample")
 #: Travel (mm) past the touch at which a level read before the touch is read instead.
 JUST_AFTER_TOUCH_MM = 1e-3
-
-
-class UnphysicalSolve(SolverInstability):
-    """A solve that ran to its end but whose platen force is no quasi-static compression curve.
-
-    A compression force that is not positive at a compared level: the explicit run rang there
-    (seen: a finer-mesh Coulomb solve of a 29.9 x 15.1 mm sample at friction 0.3, alpha 2.7,
-    whose side landed on the platen at 27.5 % strain; the force swung between -2.5e-3 and
-    3.0e-3 N/Pa about 1.05e-3 while the kinetic energy stayed below 1 % of the internal).
-    Handled where a :class:`SolverInstability` is: the table or candidate that needed it is
-    not used.
-    """
-
-    def __init__(self, message: str):
-        RuntimeError.__init__(self, message)
-        self.reason, self.step, self.time_s, self.travel_mm, self.element = (
-            message, None, math.nan, math.nan, None)
-
-    def __reduce__(self):
-        return (type(self), (str(self),))
-
-
-def _checked_force(force, key, travel_mm, mesh_scale=None) -> np.ndarray:
-    """``force`` (N/Pa) of the solve ``key`` at ``travel_mm``, if finite and positive.
-
-    Raises :class:`UnphysicalSolve`, naming the solve and the travel, otherwise.
-    """
-    force = np.asarray(force, dtype=float)
-    bad = ~(np.isfinite(force) & (force > 0.0))
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        d = float(np.broadcast_to(travel_mm, force.shape)[i])
-        friction = f" friction {key.friction:g}," if key.platen == "coulomb" else ""
-        raise UnphysicalSolve(
-            f"the {key.platen}{friction} alpha {key.alpha[0]:.3f}, nu {key.nu:g} solve of a "
-            f"{key.diameter_mm:g} x {key.height_mm:g} mm sample"
-            + ("" if mesh_scale is None else f" on the mesh {mesh_scale:g} times finer")
-            + f" gives a platen force of {force[i]:.3g} N/Pa at {d:.3f} mm travel "
-            f"({100 * d / key.height_mm:.1f} % strain): a compression force must be positive "
-            f"(the run rang there)")
-    return force
 #: A candidate that passes the information criterion but gains less than this fraction of the
 #: best one's dBIC is refined, held out and checked by direct solves only if none of the
 #: better ones is accepted. The refinement at a candidate's own fitted alpha moved its dBIC by
@@ -251,6 +209,50 @@ MESH_ALPHA_STEP = 1.0
 #: 24.1 mm differs from that on 38 x 24 mm by at most 0.06 % of the force at any level, a
 #: twentieth of the correction there and a fifth of a clean campaign's systematic gap.
 MESH_GEOMETRY_TOLERANCE = 0.01
+
+
+# ============================================================================ checked solves
+class UnphysicalSolve(SolverInstability):
+    """A solve that ran to its end but whose platen force is no quasi-static compression curve.
+
+    A compression force that is not positive at a compared level: the explicit run rang there.
+    Seen on a finer-mesh Coulomb solve of a 29.9 x 15.1 mm sample at friction 0.3, alpha 2.7,
+    whose side landed on the platen at 27.5 % strain: the force swung between -2.5e-3 and
+    3.0e-3 N/Pa about 1.05e-3 while the kinetic energy stayed below 1 % of the internal, and
+    crashed the workflow in scipy. Since the solver computes its virtual-work field again when
+    a node lands, only the output at the landing itself can still catch the transient (-2.5e-3
+    there in that solve). Handled where a :class:`SolverInstability` is: the table or candidate
+    that needed it is not used.
+    """
+
+    def __init__(self, message: str):
+        RuntimeError.__init__(self, message)
+        self.reason, self.step, self.time_s, self.travel_mm, self.element = (
+            message, None, math.nan, math.nan, None)
+
+    def __reduce__(self):
+        return (type(self), (str(self),))
+
+
+def _checked_force(force, key, travel_mm, mesh_scale=None) -> np.ndarray:
+    """``force`` (N/Pa) of the solve ``key`` at ``travel_mm``, if finite and positive.
+
+    Raises :class:`UnphysicalSolve`, naming the solve and the travel, otherwise.
+    """
+    force = np.asarray(force, dtype=float)
+    bad = ~(np.isfinite(force) & (force > 0.0))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        d = float(np.broadcast_to(travel_mm, force.shape)[i])
+        friction = f" friction {key.friction:g}," if key.platen == "coulomb" else ""
+        raise UnphysicalSolve(
+            f"the {key.platen}{friction} alpha {key.alpha[0]:.3f}, nu {key.nu:g} solve of a "
+            f"{key.diameter_mm:g} x {key.height_mm:g} mm sample"
+            + ("" if mesh_scale is None else f" on the mesh {mesh_scale:g} times finer")
+            + f" gives a platen force of {force[i]:.3g} N/Pa at {d:.3f} mm travel "
+            f"({100 * d / key.height_mm:.1f} % strain): a compression force must be positive "
+            f"(the run rang there)")
+    return force
 
 
 # ============================================================================ layer context
