@@ -219,9 +219,9 @@ class UnphysicalSolve(SolverInstability):
     Seen on a finer-mesh Coulomb solve of a 29.9 x 15.1 mm sample at friction 0.3, alpha 2.7,
     whose side landed on the platen at 27.5 % strain: the force swung between -2.5e-3 and
     3.0e-3 N/Pa about 1.05e-3 while the kinetic energy stayed below 1 % of the internal, and
-    crashed the workflow in scipy. Since the solver computes its virtual-work field again when
-    a node lands, only the output at the landing itself can still catch the transient (-2.5e-3
-    there in that solve). Handled where a :class:`SolverInstability` is: the table or candidate
+    crashed the workflow in scipy: the solver's virtual-work field, recomputed ten times along
+    the ramp, did not match the contact set after the landing, and the landing's ringing
+    stayed in the force. Handled where a :class:`SolverInstability` is: the table or candidate
     that needed it is not used.
     """
 
