@@ -3002,8 +3002,7 @@ def discover_campaign(campaign, *, settings: FitSettings | None = None,
     accepted = Model([], [])
     rounds = []
     also_possible = []
-    warnings = []
-    warnings += grid_warnings
+    warnings = list(grid_warnings)
     toes = toe_warning(campaign.cycles)
     if toes:
         log(f"discover: warning: {toes}")
