@@ -269,9 +269,9 @@ class LayerContext:
         self.data = fit.data
         self.unit = OgdenUnitResponse(forward, fit.data, settings)
         self.unit.nodes.update(fit.alpha_nodes)
+        self.unit.correction_scale = settings.mesh_correction or None
+        self.unit.ratio_nodes.update(fit.ratio_nodes)
         self.unit.mesh_ratio = fit.mesh_ratio
-        level = np.broadcast_to(fit.data.levels, fit.data.valid.shape)[fit.data.valid]
-        self.unit.correction = np.interp(level, fit.data.levels, fit.mesh_ratio)
         self.forward = forward
         valid = fit.data.valid
         cyc = self.unit.cycle_of_point
@@ -386,24 +386,29 @@ class LayerContext:
                 - np.log(self.finer_over_fitting(base, travel)))
 
     def prepare_mesh_ratio(self) -> None:
-        """Tabulate the discretisation correction along the whole curve (one finer solve).
+        """Tabulate the discretisation correction along the whole curve at the grid alphas.
 
         The base fit corrects the fitting mesh at the comparison levels only. An observation
         effect that moves a level to another point of the curve (a travel offset, a series
         spring) must take the correction of the point it moves to: the fitting mesh's side
         rolling onto the platens node by node puts bumps of a few tenths of a percent into its
         curve between 18 and 26 % (the finer mesh's are smaller), and a correction read at
-        the wrong strain leaves them in the residuals as structure no effect explains.
+        the wrong strain leaves them in the residuals as structure no effect explains. The
+        bumps move along the strain with alpha, so the correction is solved at each alpha of
+        :meth:`prepare_unit_curves` (one finer solve each, at the layer's median geometry)
+        and interpolated with the same weights.
         """
         if hasattr(self, "ratio_table"):
             return
-        key = self.base_key(self.alpha_ref)
         strain = np.linspace(0.0, self.forward.strain_needed, 241)[1:]
-        if self.unit.settings.mesh_correction:
-            ratio = self.finer_over_fitting(key, strain * key.height_mm)
-        else:
-            ratio = np.ones(len(strain))
-        self.ratio_table = (strain, ratio)
+        rows = []
+        for a in self.unit_curves[0]:
+            key = self.base_key(a)
+            if self.unit.settings.mesh_correction:
+                rows.append(self.finer_over_fitting(key, strain * key.height_mm))
+            else:
+                rows.append(np.ones(len(strain)))
+        self.ratio_table = (strain, np.array(rows))
 
     def prepare_unit_curves(self) -> None:
         """Solve every geometry of the layer at the alphas of :data:`GRID_ALPHA_OFFSETS`.
@@ -443,8 +448,9 @@ class LayerContext:
         stable. One JIT kernel (:meth:`calib.splines.ShiftedSplines.spring_equilibrium`);
         :func:`_compliant_strain` is its NumPy twin.
         """
-        return self._unit_rows[g].spring_equilibrium(strain, weights, g[1], k_spring,
-                                                     *self.ratio_table)
+        grid, rows = self.ratio_table
+        return self._unit_rows[g].spring_equilibrium(strain, weights, g[1], k_spring, grid,
+                                                     weights @ rows)
 
     def alpha_weights(self, alpha: float) -> np.ndarray:
         """Weights of the solved alphas at ``alpha`` for :meth:`unit_curve`.
@@ -453,10 +459,18 @@ class LayerContext:
         """
         return _lagrange(self.unit_curves[0], alpha)
 
-    def mesh_ratio(self, strain) -> np.ndarray:
-        """Finer-mesh over fitting-mesh force at the given strains (see prepare_mesh_ratio)."""
-        grid, ratio = self.ratio_table
-        return np.interp(strain, grid, ratio)
+    def mesh_ratio(self, strain, weights: np.ndarray) -> np.ndarray:
+        """Finer-mesh over fitting-mesh force at the given strains (see prepare_mesh_ratio).
+
+        At the alpha of ``weights`` (:meth:`alpha_weights`).
+        """
+        grid, rows = self.ratio_table
+        return np.interp(strain, grid, weights @ rows)
+
+    def mesh_ratio_rows(self, strain) -> np.ndarray:
+        """:meth:`mesh_ratio` at each solved alpha, shape (n_alphas, n_strain)."""
+        grid, rows = self.ratio_table
+        return np.array([np.interp(strain, grid, row) for row in rows])
 
     def curve_at_strain(self, key: CurveKey, strain) -> np.ndarray:
         """Unit force of a solve at the given strains of its own height.
@@ -568,7 +582,7 @@ class _UnitView:
                 self.groups[g] = inside
 
     def __getattr__(self, name):
-        if name in ("travel", "cycle_of_point", "correction", "direct", "derivative",
+        if name in ("travel", "cycle_of_point", "_level", "direct", "derivative",
                     "__call__"):
             raise AttributeError(f"unit.{name} is a whole layer's; not defined on a view")
         return getattr(self._unit, name)
@@ -1161,8 +1175,9 @@ class ContactOffset(_CurveReadingEffect):
                 d = ctx.travel[idx]
                 shifted = np.maximum(d - theta[0], JUST_AFTER_TOUCH_MM)
                 # the discretisation correction of the point the level moves to
-                out[g] = (ctx.unit_curve_rows(g, shifted) * ctx.mesh_ratio(shifted / g[1]),
-                          ctx.unit_curve_rows(g, d) * ctx.mesh_ratio(d / g[1]))
+                out[g] = (ctx.unit_curve_rows(g, shifted)
+                          * ctx.mesh_ratio_rows(shifted / g[1]),
+                          ctx.unit_curve_rows(g, d) * ctx.mesh_ratio_rows(d / g[1]))
             return out
 
         out = np.empty(len(ctx.y))
@@ -1279,7 +1294,7 @@ class MachineCompliance(_CurveReadingEffect):
             # at the current alpha (the spring's travel is the force times the compliance),
             # corrected for discretisation at the sample's own strain (see ContactOffset)
             def f(s, g=g, h=h):
-                return ctx.unit_curve(g, w, s * h) * ctx.mesh_ratio(s)
+                return ctx.unit_curve(g, w, s * h) * ctx.mesh_ratio(s, w)
 
             # the logged travel from where the loader reads the compliant curve's contact
             read = strain
@@ -2159,7 +2174,7 @@ def _direct_prediction(ctx: LayerContext, model: Model, mu: float, alpha: float,
         for e, t in zip(model.effects, model.theta):
             key = e.full_key(t, key, info.rate_mm_per_s)
             log_delta = log_delta + _mesh_delta(e, ctx, info.rate_mm_per_s, t, alpha_c)
-        ratio_levels = ctx.unit.mesh_ratio * np.exp(log_delta)
+        ratio_levels = ctx.unit.mesh_ratio_at(alpha_c) * np.exp(log_delta)
 
         def unit_force(strain, key=key, h=info.height_mm, ratio_levels=ratio_levels):
             strain = np.asarray(strain)
@@ -2580,6 +2595,9 @@ def _prepare_job(fit: LayerFit, settings: FitSettings, names: Sequence[str],
         for k in range(max(1, int(lo / step) - 1), int(hi / step) + 3):
             ctx.unit.node(k)
         new["alpha_nodes"] = dict(ctx.unit.nodes)
+        for k in ctx.unit.nodes:
+            ctx.unit.ratio_node(k)
+        new["ratio_nodes"] = dict(ctx.unit.ratio_nodes)
     return fit.layer, new, forward.n_solves
 
 
@@ -2623,6 +2641,7 @@ def _prepare(contexts, settings, names, alphas, workers, scheduler, progress,
         for future in cf.as_completed(futures):
             layer, attrs, n = future.result()
             by_layer[layer].unit.nodes.update(attrs.pop("alpha_nodes", {}))
+            by_layer[layer].unit.ratio_nodes.update(attrs.pop("ratio_nodes", {}))
             vars(by_layer[layer]).update(attrs)
             if alphas is not None:
                 by_layer[layer].alpha_ref = alphas[layer]

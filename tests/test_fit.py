@@ -6,9 +6,13 @@ import numpy as np
 import pytest
 
 from calib.fit import (
+    DEFAULT_LEVELS,
     CurveKey,
+    CycleInfo,
     FitSettings,
     ForwardModel,
+    LayerData,
+    OgdenUnitResponse,
     fit_campaign,
     fit_layer,
     layer_data,
@@ -234,6 +238,35 @@ def test_axial_ratio_grades_the_fitting_and_correction_meshes():
     for bad in (0.5, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="axial_ratio"):
             FitSettings(axial_ratio=bad)
+
+
+def test_discretisation_correction_is_the_one_of_the_forces_own_alpha():
+    """The finer-over-fitting mesh ratio multiplies each unit force at that force's alpha.
+
+    Reference: direct solves on both meshes at exactly alpha 5.9, their ratio times the
+    fitting mesh's force. Where the side lands on the platens (beyond 20 %) the ratio's bumps
+    move with alpha: the ratio of alpha 4 (the kind of first-fit alpha a series spring's
+    refit moves 2 away from) is 0.2 % or more off at some level there, while the ratio
+    interpolated over the surrogate's nodes (0.5 apart) is within 0.05 % (the cubic's error
+    between nodes, a tenth of the bumps' change from node to node).
+    """
+    levels = np.asarray(DEFAULT_LEVELS)
+    data = LayerData(layer="A", cycles=(CycleInfo("a.csv", "A1", 1, 1.0, 38.0, 24.0),),
+                     levels=levels, force=np.ones((1, len(levels))),
+                     noise=np.zeros((1, len(levels))))
+    settings = FitSettings()
+    forward = ForwardModel.for_settings(settings)
+    unit = OgdenUnitResponse(forward, data, settings)
+    first = unit.set_correction(4.0, 2.0)
+    key = CurveKey(alpha=(5.9,), diameter_mm=38.0, height_mm=24.0)
+    travel = levels * 24.0
+    ratio = forward.curve(key, 2.0)(travel) / forward.curve(key)(travel)
+    late = levels > 0.2
+    assert np.max(np.abs(first / ratio - 1.0)[late]) > 2e-3  # else this test shows nothing
+    assert unit.mesh_ratio_at(5.9) == pytest.approx(ratio, rel=5e-4)
+    assert unit(5.9) == pytest.approx(forward.unit_forces(key, travel) * ratio, rel=5e-4)
+    assert unit.direct(5.9) == pytest.approx(unit(5.9), rel=5e-4)
+    assert first == pytest.approx(unit.mesh_ratio_at(4.0), rel=1e-12)
 
 
 @pytest.mark.slow
