@@ -219,10 +219,10 @@ class UnphysicalSolve(SolverInstability):
     Seen on a finer-mesh Coulomb solve of a 29.9 x 15.1 mm sample at friction 0.3, alpha 2.7,
     whose side landed on the platen at 27.5 % strain: the force swung between -2.5e-3 and
     3.0e-3 N/Pa about 1.05e-3 while the kinetic energy stayed below 1 % of the internal, and
-    crashed the workflow in scipy: the solver's virtual-work field, recomputed ten times along
-    the ramp, did not match the contact set after the landing, and the landing's ringing
-    stayed in the force. Handled where a :class:`SolverInstability` is: the table or candidate
-    that needed it is not used.
+    crashed the workflow in scipy: the solver's virtual-work field, then recomputed only ten
+    times along the ramp, did not match the contact set after the landing, and the landing's
+    ringing stayed in the force (the solver now recomputes it at every landing). Handled where
+    a :class:`SolverInstability` is: the table or candidate that needed it is not used.
     """
 
     def __init__(self, message: str):
