@@ -136,7 +136,7 @@ def layer_report(fit) -> str:
         f"alpha = {hom['alpha']:.3f} ({hom['alpha'] / fit.alpha - 1:+.1%} vs FE)",
         f"Initial guesses: mu from the modulus estimator {fit.initial['mu_Pa_modulus']:.1f} Pa; "
         f"alpha {fit.initial['alpha_guess']:.3f} (homogeneous, bias-corrected by one FE solve)",
-        "Discretisation correction (finer / fitting mesh) at 10, 20, 30 %: "
+        "Discretisation correction (finer / fitting mesh, at the fitted alpha) at 10, 20, 30 %: "
         + ", ".join(f"{100 * (np.interp(x, fit.data.levels, fit.mesh_ratio) - 1):+.2f} %"
                     for x in (0.1, 0.2, 0.3)),
         f"Alpha surrogate vs direct solve at the optimum: max difference "
