@@ -1098,9 +1098,8 @@ def test_accepted_compliance_refits_each_layer_near_its_truth(tmp_path):
     mu -1.3 and -2.2 %, alpha -0.23 and -0.38, the gap 6.3 -> 6.3 mN. Tolerances: 0.03 mm/N
     (a fifth of the spring), 2 % in mu and 0.25 in alpha (the spring trades against both:
     0.03 mm/N moves layer D's alpha by about 0.3), and a held-out ratio below 0.75, between
-    the two codes' 0.62 and 1.0. Before the noise
-    model took the extended model's directions, layer D's refit tilted along the base
-    model's (mu +4.6 %, alpha -0.1) and its RMS gap grew.
+    the two codes' 0.62 and 1.0. Before the noise model took the extended model's directions,
+    layer D's refit tilted along the base model's (mu +4.6 %, alpha -0.1) and its RMS gap grew.
     """
     from calib.loaders import load_campaign
     from experiments.generator import Scatter, generate_campaign
