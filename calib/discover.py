@@ -271,7 +271,6 @@ class LayerContext:
         self.unit.nodes.update(fit.alpha_nodes)
         self.unit.correction_scale = settings.mesh_correction or None
         self.unit.ratio_nodes.update(fit.ratio_nodes)
-        self.unit.mesh_ratio = fit.mesh_ratio
         self.forward = forward
         valid = fit.data.valid
         cyc = self.unit.cycle_of_point
@@ -401,14 +400,13 @@ class LayerContext:
         if hasattr(self, "ratio_table"):
             return
         strain = np.linspace(0.0, self.forward.strain_needed, 241)[1:]
-        rows = []
-        for a in self.unit_curves[0]:
-            key = self.base_key(a)
-            if self.unit.settings.mesh_correction:
-                rows.append(self.finer_over_fitting(key, strain * key.height_mm))
-            else:
-                rows.append(np.ones(len(strain)))
-        self.ratio_table = (strain, np.array(rows))
+        alphas = self.unit_curves[0]
+        if self.unit.settings.mesh_correction:
+            rows = np.array([self.finer_over_fitting(key, strain * key.height_mm)
+                             for key in map(self.base_key, alphas)])
+        else:
+            rows = np.ones((len(alphas), len(strain)))
+        self.ratio_table = (strain, rows)
 
     def prepare_unit_curves(self) -> None:
         """Solve every geometry of the layer at the alphas of :data:`GRID_ALPHA_OFFSETS`.

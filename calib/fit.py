@@ -508,8 +508,6 @@ class OgdenUnitResponse:
         self.correction_scale: float | None = None
         #: finer over fitting mesh force at the levels, at the grid node ``alpha_step * k``
         self.ratio_nodes: dict[int, np.ndarray] = {}
-        #: the correction at the levels at the alpha last given to :meth:`set_correction`
-        self.mesh_ratio = np.ones(len(data.levels))
         self._level = np.broadcast_to(data.levels, data.valid.shape)[valid]
         self._shifts: dict[CurveKey, float] = {}
 
@@ -601,7 +599,8 @@ class OgdenUnitResponse:
         """
         if self.correction_scale is None:
             return np.ones(len(self.data.levels))
-        ks = np.arange(self._first_node(alpha), self._first_node(alpha) + 4)
+        first = self._first_node(alpha)
+        ks = np.arange(first, first + 4)
         rows = np.array([self.ratio_node(int(k)) for k in ks])
         return interpolate.CubicSpline(ks * self.settings.alpha_step, rows, axis=0)(alpha)
 
@@ -619,8 +618,7 @@ class OgdenUnitResponse:
         """
         self.correction_scale = mesh_scale
         self._splines.clear()
-        self.mesh_ratio = self.mesh_ratio_at(alpha)
-        return self.mesh_ratio
+        return self.mesh_ratio_at(alpha)
 
 
 def _varpro_mu(U: np.ndarray, y: np.ndarray, W: np.ndarray) -> float:
@@ -1075,7 +1073,7 @@ def fit_layer(cycles: Sequence, settings: FitSettings | None = None,
 
     # the surrogate against direct solves at the optimum; the correction there is reported
     U_direct = unit.direct(alpha)
-    unit.mesh_ratio = unit.mesh_ratio_at(alpha)
+    mesh_ratio = unit.mesh_ratio_at(alpha)
     surrogate_error = float(np.max(np.abs(unit(alpha) / U_direct - 1.0)))
     if surrogate_error > 5e-3:
         warnings.append(f"alpha surrogate differs from a direct solve by {surrogate_error:.2%}")
@@ -1086,7 +1084,7 @@ def fit_layer(cycles: Sequence, settings: FitSettings | None = None,
     for c in data.cycles:
         key = unit.key(alpha, (c.diameter_mm, c.height_mm))
         spline = forward.curve(key)
-        ratio = np.interp(spline.x / c.height_mm, data.levels, unit.mesh_ratio)
+        ratio = np.interp(spline.x / c.height_mm, data.levels, mesh_ratio)
         # travel from where the loader's contact fit would put the contact (see contact_fit)
         curves.append((spline.x - unit.contact_shift(key), mu * spline(spline.x) * ratio))
     return LayerFit(
@@ -1095,7 +1093,7 @@ def fit_layer(cycles: Sequence, settings: FitSettings | None = None,
         rms_N=rms, n_cycles=len(data.cycles), ci=ci, aic=float(result.aic),
         bic=float(result.bic), chisqr=float(result.chisqr), redchi=float(result.redchi),
         ndata=int(result.ndata), noise=noise, covariance=cov, alpha_nodes=dict(unit.nodes),
-        ratio_nodes=dict(unit.ratio_nodes), mesh_ratio=unit.mesh_ratio,
+        ratio_nodes=dict(unit.ratio_nodes), mesh_ratio=mesh_ratio,
         homogeneous=hom,
         initial={"mu_Pa_modulus": mu_e, "alpha_homogeneous": hom["alpha"],
                  "alpha_guess": guess, "alpha_first_fit": alpha1,
