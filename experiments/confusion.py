@@ -177,6 +177,59 @@ def decide_all(candidates: list[dict], thresholds, n_cycles: int) -> tuple[str, 
                             if c["delta_bic"] - best["delta_bic"] < _margin(best["delta_bic"])]
 
 
+#: what makes two runs' campaigns alike but for the hidden effect (see :func:`gap_above_floor`)
+_LIKE = ("seed", "layers", "fast", "truth_code", "axial_ratio", "contact_noise", "levels")
+
+
+def excess(value: float, floor: float) -> float:
+    """The part of an RMS gap above a floor that is independent of it: sqrt(value^2 - floor^2).
+
+    0 where the gap is at or below the floor.
+    """
+    return math.sqrt(max(value * value - floor * floor, 0.0))
+
+
+def gap_above_floor(records: list[dict]) -> list[dict]:
+    """Each effect run's held-out gaps, before and after, above those of its clean twin.
+
+    A held-out gap has a floor no effect can remove: the sensor's noise, the samples' scatter
+    about the model and the fitting mesh's differences from the generating one. The clean
+    run of the same seed, layers and settings measures it (its gap before, with nothing to
+    find). Independent of what an effect adds, it adds in quadrature, so the effect's own part
+    is :func:`excess`; a gap that an effect brings back to the floor shrinks to 0 there, while
+    the gap itself cannot halve if the floor was most of it.
+
+    Returns one row per effect run with a clean twin and per held-out kind: the gap of each
+    sample at its own mu and alpha (N) and the systematic part (fraction), each as
+    ``(before, after, floor, ratio of the excesses)``; the ratio is NaN without an excess
+    before.
+    """
+    def alike(a, b):
+        return all(a.get(k) == b.get(k) for k in _LIKE)
+
+    done = [r for r in records if "failed" not in r]
+    rows = []
+    for r in done:
+        if r["scenario"] == "clean" or "heldout_samples_before" not in r:
+            continue
+        twin = next((c for c in done if c["scenario"] == "clean" and alike(c, r)
+                     and "heldout_samples_before" in c), None)
+        if twin is None:
+            continue
+        for kind in r["heldout_samples_before"]:
+            row = {"scenario": r["scenario"], "seed": r["seed"], "kind": kind}
+            for name, key in (("samples", "heldout_samples"),
+                              ("systematic", "heldout_systematic")):
+                floor = twin[f"{key}_before"].get(kind)
+                before, after = r[f"{key}_before"][kind], r[f"{key}_after"][kind]
+                if floor is None:
+                    continue
+                b, a = excess(before, floor), excess(after, floor)
+                row[name] = (before, after, floor, a / b if b > 0 else math.nan)
+            rows.append(row)
+    return rows
+
+
 def summarise(records: list[dict]) -> str:
     """Confusion table (true scenario x named effect) and threshold calibration of nulls."""
     from calib.discover import THRESHOLDS
@@ -245,6 +298,24 @@ def summarise(records: list[dict]) -> str:
                          f"{samples}; systematic part fitted {sys_fit}, held out "
                          f"{sys_held} (model of the unthresholded pick, "
                          f"{r['named_unthresholded']})" if c else "")
+    above = gap_above_floor(records)
+    if above:
+        lines += ["", "held-out gaps above the clean run's of the same seed (the floor; "
+                  "excess = sqrt(gap^2 - floor^2)): each sample at its own mu, alpha (mN) | "
+                  "systematic part (%)",
+                  "| scenario | held out by | gap before -> after (floor) | excess ratio | "
+                  "systematic before -> after (floor) | excess ratio |",
+                  "| --- | --- | --- | --- | --- | --- |"]
+        for row in above:
+            cells = []
+            for name, unit in (("samples", 1e3), ("systematic", 100.0)):
+                if name not in row:
+                    cells += ["", ""]
+                    continue
+                b, a, f, ratio = row[name]
+                cells += [f"{unit * b:.2f} -> {unit * a:.2f} ({unit * f:.2f})", f"{ratio:.2f}"]
+            lines.append(f"| {row['scenario']} (seed {row['seed']}) | {row['kind']} | "
+                         + " | ".join(cells) + " |")
     warned = [r for r in records if r.get("warning")]
     if warned:
         lines += ["", "runs whose name discover doubts (a candidate at the edge of its box "

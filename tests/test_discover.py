@@ -1012,6 +1012,39 @@ def test_confusion_replay_of_the_acceptance_rules():
     assert decide_all([a, b, d], th, n) == ("b", ["a", "d"])
 
 
+def test_confusion_gap_above_the_floor_of_the_clean_twin():
+    """The held-out gap an effect leaves above its clean twin's (same seed, layers and
+    settings), in quadrature: a gap brought back to the floor counts as gone."""
+    from experiments.confusion import excess, gap_above_floor, summarise
+
+    assert excess(5.0, 3.0) == pytest.approx(4.0) and excess(2.0, 3.0) == 0.0
+
+    def run(scenario, seed, samples, systematic, **other):
+        r = {"scenario": scenario, "seed": seed, "layers": ["A", "D"], "fast": False,
+             "truth_code": "solver", "axial_ratio": 3.0, "contact_noise": False,
+             "levels": [0.1, 0.2], "magnitude": 1.0, "named": "none", "candidates": [],
+             "n_cycles": 18, "heldout_before": {"rate": 0.1}, "heldout_after": {"rate": 0.1},
+             "heldout_samples_before": {"rate": samples[0]},
+             "heldout_samples_after": {"rate": samples[1]},
+             "heldout_systematic_before": {"rate": systematic[0]},
+             "heldout_systematic_after": {"rate": systematic[1]}}
+        return r | other
+
+    clean = run("clean", 1, (0.003, 0.004), (0.002, 0.002))
+    spring = run("machine_compliance", 1, (0.005, 0.0035), (0.006, 0.001))
+    other_seed = run("compressibility", 2, (0.005, 0.004), (0.006, 0.003))
+    other_mesh = run("platen_slip", 1, (0.005, 0.004), (0.006, 0.003), fast=True)
+    rows = gap_above_floor([clean, spring, other_seed, other_mesh])
+    assert [r["scenario"] for r in rows] == ["machine_compliance"]  # only it has a twin
+    b, a, f, ratio = rows[0]["samples"]
+    assert (b, a, f) == (0.005, 0.0035, 0.003)  # the twin's gap before is the floor
+    assert ratio == pytest.approx(excess(0.0035, 0.003) / 4e-3)
+    assert ratio == pytest.approx(math.sqrt(0.0035**2 - 0.003**2) / 0.004)
+    assert rows[0]["systematic"][3] == 0.0  # back below the floor
+    assert "| machine_compliance (seed 1) | rate | 5.00 -> 3.50 (3.00) | 0.45 |" in summarise(
+        [clean, spring])
+
+
 def test_confusion_records_a_failed_run_and_goes_on(tmp_path, monkeypatch, capsys):
     """A run that fails (an independent code's Newton solve, say) is recorded with its reason
     and listed in the summary; the other runs go on, and the exit status says so."""
