@@ -1432,6 +1432,9 @@ class _MixedProblem:
         self.rows = [np.flatnonzero(sample == s) for s in self.samples]
         self.L = ctx.sample_root
         self.static = not any(e.uses_alpha or e.uses_mu for e in model.effects)
+        #: whether the effects' modification moves with mu; if not, d force / d ln mu is the
+        #: force itself
+        self.uses_mu = any(e.uses_mu for e in model.effects)
         self.factor = (np.exp(model.modification(ctx, ctx.fit.mu_Pa, ctx.fit.alpha))
                        if self.static else None)
         #: each sample's points of the layer, and the layer seen on them (for the effects
@@ -1486,11 +1489,14 @@ class _MixedProblem:
                 if up is None:
                     h = -h
                     up = self.sample_force(k, ln_mu, alpha + h)
-                f_mu = self.sample_force(k, ln_mu + 1e-6, alpha)
-                if up is None or f_mu is None:
+                if up is None:
                     return None
                 d_alpha = (up - f) / h
-                f = (f_mu - f) / 1e-6
+                if self.uses_mu:  # the force is mu times the unit force otherwise
+                    f_mu = self.sample_force(k, ln_mu + 1e-6, alpha)
+                    if f_mu is None:
+                        return None
+                    f = (f_mu - f) / 1e-6
             d = np.column_stack([f, d_alpha])  # d force / d (ln mu_s, alpha_s)
             J[rows, :2] = d
             J[rows, 2 + 2 * k:4 + 2 * k] = d @ self.L

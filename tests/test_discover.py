@@ -774,6 +774,44 @@ def test_fast_effect_model_agrees_with_direct_solves_away_from_the_base_alpha(la
         assert np.max(np.abs(first[thetas[0]] - first[thetas[1]])) > 1e-3, name
 
 
+def test_refit_jacobian_in_ln_mu_matches_differences_of_the_residuals(layer_a_context):
+    """The mixed refit's Jacobian column of the layer's ln mu: the force itself for effects
+    that do not see mu (a travel offset, a compressible gel), forward differences for one
+    that does (a series spring, whose travel is force times compliance). Both must match
+    central differences of the residual vector (step 1e-5; tolerance 1e-5 of the column's
+    largest entry, the forward difference's truncation at step 1e-6 being far below), and
+    the spring's column must differ from its force by far more, or the check shows nothing."""
+    from calib.discover import Model, _MixedProblem, _structure_free_noise
+
+    ctx = layer_a_context
+    pred = ctx.fit.predicted[ctx.data.valid]
+    J = np.column_stack([pred, ctx.fit.mu_Pa * ctx.unit.derivative(ctx.fit.alpha)])
+    _structure_free_noise(ctx, pred, J, ctx.fit.noise.sample_cov)
+    mask = np.ones(len(ctx.y), bool)
+    for name, theta in [("contact_offset", (0.1,)), ("compressibility", (0.45,)),
+                        ("machine_compliance", (0.15,))]:
+        problem = _MixedProblem(ctx, Model([make_effect(name)], [theta]), mask)
+        assert problem.uses_mu == (name == "machine_compliance")
+        n_s = len(problem.samples)
+        p = np.concatenate([[math.log(ctx.fit.mu_Pa), ctx.fit.alpha + 0.3],
+                            0.3 * np.ones(2 * n_s)])
+        res, jac = problem.evaluate(p)
+        h = 1e-5
+        step = np.zeros_like(p)
+        step[0] = h
+        central = (problem.evaluate(p + step, jacobian=False)
+                   - problem.evaluate(p - step, jacobian=False)) / (2 * h)
+        scale = np.max(np.abs(jac[:, 0]))
+        np.testing.assert_allclose(jac[:, 0], central, rtol=0, atol=1e-5 * scale,
+                                   err_msg=name)
+        if name == "machine_compliance":  # the force alone would be a wrong column
+            force = np.empty(len(problem.y))
+            for k, (rows, phi) in enumerate(zip(problem.rows, problem.phis(p))):
+                force[rows] = problem.sample_force(k, *phi)
+            force_only = np.concatenate([problem.W @ force, np.zeros(2 * n_s)])
+            assert np.max(np.abs(force_only - central)) > 1e-3 * scale
+
+
 def test_candidates_fitted_in_worker_processes_equal_those_fitted_here(layer_a_context):
     """A round's candidate fits run in worker processes, each on its own copy of the
     contexts (tables, noise model): the same models, chi-squares and RMS gaps as fitted one
