@@ -199,10 +199,11 @@ def gap_above_floor(records: list[dict]) -> list[dict]:
     is :func:`excess`; a gap that an effect brings back to the floor shrinks to 0 there, while
     the gap itself cannot halve if the floor was most of it.
 
-    Returns one row per effect run with a clean twin and per held-out kind: the gap of each
-    sample at its own mu and alpha (N) and the systematic part (fraction), each as
-    ``(before, after, floor, ratio of the excesses)``; the ratio is NaN without an excess
-    before.
+    The gaps after are those of the model of the run's unthresholded pick, which need not be
+    the true effect's (``after_model``). Returns one row per effect run with a clean twin and
+    per held-out kind: the gap of each sample at its own mu and alpha (N) and the systematic
+    part (fraction), each as ``(before, after, floor, ratio of the excesses)``; the ratio is
+    NaN without an excess before.
     """
     def alike(a, b):
         return all(a.get(k) == b.get(k) for k in _LIKE)
@@ -217,7 +218,9 @@ def gap_above_floor(records: list[dict]) -> list[dict]:
         if twin is None:
             continue
         for kind in r["heldout_samples_before"]:
-            row = {"scenario": r["scenario"], "seed": r["seed"], "kind": kind}
+            # the gaps after are those of the unthresholded pick's model (see run_one)
+            row = {"scenario": r["scenario"], "seed": r["seed"], "kind": kind,
+                   "after_model": r.get("named_unthresholded", r["scenario"])}
             for name, key in (("samples", "heldout_samples"),
                               ("systematic", "heldout_systematic")):
                 floor = twin[f"{key}_before"].get(kind)
@@ -314,7 +317,9 @@ def summarise(records: list[dict]) -> str:
                     continue
                 b, a, f, ratio = row[name]
                 cells += [f"{unit * b:.2f} -> {unit * a:.2f} ({unit * f:.2f})", f"{ratio:.2f}"]
-            lines.append(f"| {row['scenario']} (seed {row['seed']}) | {row['kind']} | "
+            other = ("" if row["after_model"] in (None, row["scenario"])
+                     else f"; after: {row['after_model']}'s model")
+            lines.append(f"| {row['scenario']} (seed {row['seed']}{other}) | {row['kind']} | "
                          + " | ".join(cells) + " |")
     warned = [r for r in records if r.get("warning")]
     if warned:

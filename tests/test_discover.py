@@ -1081,6 +1081,11 @@ def test_confusion_gap_above_the_floor_of_the_clean_twin():
     assert rows[0]["systematic"][3] == 0.0  # back below the floor
     assert "| machine_compliance (seed 1) | rate | 5.00 -> 3.50 (3.00) | 0.45 |" in summarise(
         [clean, spring])
+    # the gaps after are the unthresholded pick's model's, and the table says whose
+    spring["named_unthresholded"] = "contact_offset"
+    assert gap_above_floor([clean, spring])[0]["after_model"] == "contact_offset"
+    assert "| machine_compliance (seed 1; after: contact_offset's model) | rate |" in summarise(
+        [clean, spring])
 
 
 def test_confusion_records_a_failed_run_and_goes_on(tmp_path, monkeypatch, capsys):
