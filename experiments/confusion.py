@@ -317,8 +317,9 @@ def summarise(records: list[dict]) -> str:
                     continue
                 b, a, f, ratio = row[name]
                 cells += [f"{unit * b:.2f} -> {unit * a:.2f} ({unit * f:.2f})", f"{ratio:.2f}"]
-            other = ("" if row["after_model"] in (None, row["scenario"])
-                     else f"; after: {row['after_model']}'s model")
+            after = row["after_model"]
+            other = ("" if after == row["scenario"] else "; after: the base model"
+                     if after == "none" else f"; after: {after}'s model")
             lines.append(f"| {row['scenario']} (seed {row['seed']}{other}) | {row['kind']} | "
                          + " | ".join(cells) + " |")
     warned = [r for r in records if r.get("warning")]
