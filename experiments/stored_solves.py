@@ -8,8 +8,9 @@ curves hold for any sample of the same aspect ratio and how they are used.
 
     python -m experiments.stored_solves [--alpha-max 14] [--workers N]
 
-About 50 CPU seconds per alpha. A solve that goes unstable before the strain the fits need is
-left out (the toolkit then solves it, and fails the same way).
+About 70 CPU seconds per alpha (490 s for the 14 alphas with two workers on 2026-12-07, at
+seven frictions; 50 s per alpha at the five before). A solve that goes unstable before the
+strain the fits need is left out (the toolkit then solves it, and fails the same way).
 """
 
 from __future__ import annotations
