@@ -949,11 +949,12 @@ def test_shared_mesh_correction_is_solved_once_per_lattice_alpha(layer_a_context
                                        rtol=1e-9, atol=1e-15)
 
 
-def test_slip_table_follows_each_sample_aspect_ratio_from_the_extreme_two():
-    """Platen slip's table is read on each sample's geometry: solved at the layer's lowest and
-    highest aspect ratio only (at the frictions of its correction), the other geometries'
-    difference from the median interpolated linearly in the aspect ratio, and nothing solved
-    for a geometry of the median's aspect ratio (the solves are exactly similar in size).
+def test_slip_table_follows_each_sample_aspect_ratio_from_the_farthest_on_each_side():
+    """Platen slip's table is read on each sample's geometry: solved at the layer's farthest
+    aspect ratio on either side of the median's only (at five frictions), the other
+    geometries' difference from the median interpolated linearly in the aspect ratio, and
+    nothing solved for a geometry of the median's aspect ratio (the solves are exactly
+    similar in size).
 
     The relative change here is linear in the aspect ratio and in friction, which the scheme
     reproduces exactly: it must equal the table solved on every geometry at every friction.
@@ -1007,6 +1008,14 @@ def test_slip_table_follows_each_sample_aspect_ratio_from_the_extreme_two():
         np.testing.assert_allclose(shifts[g], full[g], rtol=0, atol=1e-12, err_msg=str(g))
     assert not shifts[median].any() and not shifts[(19.0, 12.0)].any()
     assert np.abs(shifts[(37.7, 23.5)]).max() > 3e-3  # the sample that went unnamed
+    # every geometry on one side of the median's: only the farthest is solved
+    ctx.unit.groups = {(38.4, 24.0): None, (38.9, 24.0): None}
+    effect.geometry_by_aspect = True
+    solved.clear()
+    one_sided = effect.geometry_shifts(ctx, 5.0, rows)
+    assert {g for g, *_ in solved} == {(38.9, 24.0)}
+    for g in ctx.unit.groups:
+        np.testing.assert_allclose(one_sided[g], full[g], rtol=0, atol=1e-12, err_msg=str(g))
 
 
 @pytest.mark.parametrize("name", [n for n in EFFECTS
