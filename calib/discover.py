@@ -986,7 +986,8 @@ class PlatenSlip(_GridForwardEffect):
     # nearer two within 0.03 %), and read across frictions 0, 0.06, 0.15, 0.3, 0.45 and 1 it
     # is within 0.05 % at 0.03, 0.1 and 0.2 (0.25 % at 0.45 without it). Each solve is 1-2 s
     # on the fitting mesh: every geometry at every friction was +96 solves and +48 s on the
-    # embedded campaign's discovery, the extreme two at five frictions a third of that
+    # embedded campaign's discovery, the farthest on either side at five frictions a third
+    # of that
     per_geometry = True
     geometry_by_aspect = True
     geometry_values = (0.0, 0.06, 0.15, 0.3, 0.45)
@@ -1008,8 +1009,8 @@ class PlatenSlip(_GridForwardEffect):
     # candidate was worse than bonded at the truth and returned to bonded, at every level set.
     # So the correction is tabulated up front (a 28 x 36 Coulomb solve, about 6 s, at each of
     # six frictions, four until 2026-12-07; a frictionless one too, 0.4 s: extrapolated to it
-    # from 0.06, FElupe-made frictionless data were named contact_offset, slip not even beside it), at
-    # the alphas of the campaign-wide lattice (MESH_ALPHA_STEP) on the campaign's median
+    # from 0.06, FElupe-made frictionless data were named contact_offset, slip not even beside
+    # it), at the alphas of the campaign-wide lattice (MESH_ALPHA_STEP) on the campaign's median
     # geometry, solved once for all layers: at each layer's own four grid alphas it was
     # sixteen such solves per layer, most of a six-layer discovery's time. On the generated
     # slip campaign (friction 0.15, layers A and D, seed 1) the
