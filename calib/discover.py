@@ -606,6 +606,27 @@ def _lagrange(nodes: np.ndarray, x: float) -> np.ndarray:
     return np.array(weights)
 
 
+def _alpha_spline(alphas):
+    """The cubic spline's basis over lattice ``alphas``: x -> weights (n_alphas,).
+
+    None (Lagrange weights, see :func:`_alpha_weights`) for a single alpha.
+    """
+    if len(alphas) < 2:
+        return None
+    return interpolate.CubicSpline(alphas, np.eye(len(alphas)), axis=0)
+
+
+def _alpha_weights(nodes: np.ndarray, basis, x: float) -> np.ndarray:
+    """Weights (n_nodes,) at alpha ``x`` of a table's rows at ``nodes``.
+
+    The lattice's spline ``basis``, or else Lagrange's (:func:`_lagrange`); held within half
+    a unit beyond the nodes.
+    """
+    if basis is None:
+        return _lagrange(nodes, x)
+    return basis(min(nodes[-1] + 0.5, max(nodes[0] - 0.5, float(x))))
+
+
 # ============================================================================ effects
 class Effect:
     """A candidate extension of the model with a few parameters (see the module notes).
@@ -772,7 +793,8 @@ class _GridForwardEffect(Effect):
     the 30 % force drops by 24 % at alpha 4 and by 29 % at alpha 4.9), and the effect being
     looked for is often what biased the base fit's alpha (by 1.8 for the compressibility
     scenario). So the grid is solved at the alphas of ``alpha_offsets`` about the base fit's
-    and interpolated (cubically for four) in alpha.
+    and interpolated (cubically for four) in alpha, or, with :attr:`grid_on_lattice`, read
+    at the alphas of the campaign's lattice about them and splined.
     """
 
     #: offsets from the base fit's alpha at which the grid is solved
@@ -799,6 +821,12 @@ class _GridForwardEffect(Effect):
     #: (:data:`MESH_ALPHA_STEP`) and the campaign's median geometry, once for all layers,
     #: rather than at each layer's own grid alphas and geometry
     mesh_shared = False
+    #: with ``per_geometry`` and ``mesh_shared``: where the campaign's lattice is solved on a
+    #: geometry whose solves are stored with the package (:mod:`calib.stored`), tabulate the
+    #: effect itself on that lattice too (its alphas and geometry, splined in alpha, each
+    #: sample's geometry by :meth:`geometry_shifts` from the lattice's), not on the layer's
+    #: own grid alphas and median geometry; see :meth:`grid_geometry`
+    grid_on_lattice = False
 
     def mesh_alphas(self, ctx) -> list:
         """Alphas at which the layer's up-front discretisation correction is solved.
@@ -820,6 +848,24 @@ class _GridForwardEffect(Effect):
         """Whether the layer's up-front correction comes from the campaign's lattice."""
         return self.mesh_shared and getattr(ctx, "mesh_geometry", None) is not None
 
+    def grid_geometry(self, ctx):
+        """The geometry (diameter, height in mm) of a table read from the campaign's lattice.
+
+        The lattice's geometry where the layer is pointed at it (``mesh_geometry``, see
+        :func:`_plan_shared_mesh`) and its aspect ratio is one whose solves are stored with
+        the package (see :attr:`grid_on_lattice`): there the table costs only the solves the
+        store lacks, where the layer's own grid costs ``len(values) - 1`` solves at each of
+        its four alphas. Else None, and the layer keeps its own grid: the lattice would be
+        solved in every layer's job, at more alphas than its own grid has.
+        """
+        if not (self.grid_on_lattice and self.per_geometry and self._shares(ctx)
+                and ctx.forward.use_stored):
+            return None
+        from .stored import ASPECT_RTOL, stored_solves
+
+        d, h = ctx.mesh_geometry
+        return ctx.mesh_geometry if stored_solves().nearest_aspect(d / h, ASPECT_RTOL) else None
+
     def mesh_table(self, ctx, shared: dict | None = None) -> tuple:
         """Solve the up-front discretisation correction: (alphas, per-alpha PCHIPs, basis).
 
@@ -840,10 +886,7 @@ class _GridForwardEffect(Effect):
                 rows = _mesh_rows(ctx.forward, ctx.unit.settings, self, a, geometry,
                                   ctx.data.levels)
             per_alpha.append(interpolate.PchipInterpolator(values, rows, axis=0))
-        basis = None
-        if shares and len(alphas) > 1:
-            basis = interpolate.CubicSpline(alphas, np.eye(len(alphas)), axis=0)
-        return np.array(alphas), per_alpha, basis
+        return np.array(alphas), per_alpha, _alpha_spline(alphas) if shares else None
 
     def overrides(self, value: float) -> dict:
         raise NotImplementedError
@@ -857,16 +900,18 @@ class _GridForwardEffect(Effect):
                                        ctx.data.levels) / base)
             for v in (self.values if values is None else values)])
 
-    def geometry_shifts(self, ctx, alpha: float, median: np.ndarray) -> dict:
-        """Each sample geometry's table minus the median geometry's, at ``alpha``.
+    def geometry_shifts(self, ctx, alpha: float, median: np.ndarray, reference=None) -> dict:
+        """Each sample geometry's table minus the ``reference`` geometry's, at ``alpha``.
 
-        ``median`` is the median geometry's rows at ``alpha`` (n_values, n_levels); returns
-        geometry -> (n_values, n_levels). Every geometry is solved unless
-        :attr:`geometry_by_aspect`: then only the geometry farthest from the median's aspect
-        ratio on either side of it, at :attr:`geometry_values`, and the rest of that side
-        interpolated linearly in the aspect ratio (nil at the median's).
+        ``median`` is the rows at ``alpha`` (n_values, n_levels) of ``reference`` (diameter,
+        height in mm; default the layer's median geometry); returns geometry -> (n_values,
+        n_levels). Every geometry is solved unless :attr:`geometry_by_aspect`: then only the
+        geometry farthest from the reference's aspect ratio on either side of it, at
+        :attr:`geometry_values`, and the rest of that side interpolated linearly in the
+        aspect ratio (nil at the reference's).
         """
         groups = list(ctx.unit.groups)
+        reference = reference or ctx.geometry
         if not self.geometry_by_aspect:
             return {g: self._rows(ctx, alpha, g) - median for g in groups}
         values = (self.values if self.geometry_values is None
@@ -880,7 +925,7 @@ class _GridForwardEffect(Effect):
             return interpolate.PchipInterpolator(values, rows, axis=0)(self.values)
 
         def aspect(g):
-            return g[0] / g[1] - ctx.geometry[0] / ctx.geometry[1]
+            return g[0] / g[1] - reference[0] / reference[1]
 
         def side(g):  # exactly similar geometries differ by rounding only
             return 0 if abs(aspect(g)) <= 1e-12 else int(np.sign(aspect(g)))
@@ -894,18 +939,32 @@ class _GridForwardEffect(Effect):
                     else np.zeros_like(median)) for g in groups}
 
     def prepare(self, ctx):
-        alphas = ctx.grid_alphas(self.alpha_offsets)
-        median = [self._rows(ctx, a, None) for a in alphas]
+        geometry = self.grid_geometry(ctx)
+        if geometry is None:
+            alphas, basis = ctx.grid_alphas(self.alpha_offsets), None
+        else:
+            alphas = self.mesh_alphas(ctx)
+            basis = _alpha_spline(alphas)
+        median = [self._rows(ctx, a, geometry) for a in alphas]
         shifts = {None: 0.0}
         if self.per_geometry:
             # each sample's geometry solved at the alpha nearest the base fit's; at the other
             # alphas its difference from the median geometry there is carried over (the shape
             # factor's effect is itself a small correction, its change with alpha second order)
-            i = int(np.argmin(np.abs(np.array(alphas) - ctx.alpha_ref)))
-            shifts = self.geometry_shifts(ctx, alphas[i], median[i])
+            if basis is None:
+                i = int(np.argmin(np.abs(np.array(alphas) - ctx.alpha_ref)))
+                at, rows = alphas[i], median[i]
+            else:  # at the base fit's alpha itself, from the lattice's spline there: the
+                # solved geometries' tables are then their solves at that alpha (carried from
+                # the nearest lattice alpha, they were 0.13-0.15 % off half a unit below the
+                # base alpha on embedded layer D; so, 0.07-0.09 %)
+                at = ctx.alpha_ref
+                rows = np.tensordot(_alpha_weights(np.array(alphas), basis, at),
+                                    np.array(median), axes=1)
+            shifts = self.geometry_shifts(ctx, at, rows, geometry)
         tables = {g: [interpolate.PchipInterpolator(self.values, rows + shift, axis=0)
                       for rows in median] for g, shift in shifts.items()}
-        setattr(ctx, f"{self.name}_table", (np.array(alphas), tables))
+        setattr(ctx, f"{self.name}_table", (np.array(alphas), tables, basis))
         if self.mesh_values and ctx.unit.settings.mesh_correction:
             # at every grid alpha too: the correction moves with alpha as much as the effect's
             # residual shape (nu = 0.42 at 25 %: +0.42 % at alpha 3.1, -0.70 % at alpha 6)
@@ -920,11 +979,11 @@ class _GridForwardEffect(Effect):
 
     def modification(self, theta, ctx, mu, alpha):
         table = getattr(ctx, f"{self.name}_table")
-        nodes, tables = table
+        nodes, tables, basis = table
         value = float(theta[0])
         rows = ctx.memo((table,), (value,), lambda: {  # geometry -> (n_alphas, n_levels)
             g: np.array([t(value) for t in per_alpha]) for g, per_alpha in tables.items()})
-        weights = _lagrange(nodes, alpha)
+        weights = _alpha_weights(nodes, basis, alpha)
         shift = self.mesh_shift(ctx, value, alpha)
         out = np.empty(len(ctx.y))
         for geometry, r in rows.items():
@@ -949,11 +1008,7 @@ class _GridForwardEffect(Effect):
         nodes, per_alpha, basis = mesh
         rows = ctx.memo((mesh,), ("mesh", float(value)),
                         lambda: np.array([t(value) for t in per_alpha]))
-        if basis is None:
-            return _lagrange(nodes, alpha) @ rows
-        # the lattice's spline, held within half a unit beyond it (as :func:`_lagrange`)
-        x = min(nodes[-1] + 0.5, max(nodes[0] - 0.5, float(alpha)))
-        return basis(x) @ rows
+        return _alpha_weights(nodes, basis, alpha) @ rows
 
 
 class PlatenSlip(_GridForwardEffect):
@@ -991,6 +1046,15 @@ class PlatenSlip(_GridForwardEffect):
     per_geometry = True
     geometry_by_aspect = True
     geometry_values = (0.0, 0.06, 0.15, 0.3, 0.45)
+    # the table itself is read from the stored lattice where the campaign's is on the nominal
+    # aspect ratio (its Coulomb solves were over half a discovery's grid time: 30.6 s of
+    # layer D's 55 s, 47 solves): on the embedded campaign's layer D it then cost 6 solves
+    # (the one sample geometry on either side of the lattice's aspect ratio) and 13 with
+    # friction 0.03 not yet stored, 9.4 s. Against direct solves on each sample's geometry
+    # (frictions 0, 0.03, 0.1, 0.15) it was 0.05 % off at the base alpha, up to 0.09 % at 0.5
+    # below and 0.18 % at 0.7 above, where the layer's own grid was 0.04, 0.06 and 0.15 %
+    # off (2026-12-08; tests/test_discover.py holds a generated layer's table to 0.2 %)
+    grid_on_lattice = True
     # The Coulomb curves no longer depend on the ramp (the
     # solver's bulk viscosity), and up to 20 % strain the fitting mesh's agree with a 40 x 50
     # mesh's to 0.02 %; beyond, the rim folding onto the platen node by node moves them by
@@ -2483,6 +2547,18 @@ def _mesh_keys(settings: FitSettings, effect: Effect, alpha: float, geometry) ->
     values = sorted(set(effect.mesh_values) | {effect.reference})
     return {v: base if v == effect.reference else
             dataclasses.replace(base, **effect.overrides(float(v))) for v in values}
+
+
+def _grid_keys(settings: FitSettings, effect: Effect, alpha: float, geometry) -> dict:
+    """The fitting-mesh solves of an effect's table at one alpha: value -> key (sorted).
+
+    As :meth:`_GridForwardEffect._rows` solves them on ``geometry`` (diameter, height in mm);
+    the effect's reference value is the base model's solve.
+    """
+    keys = _mesh_keys(settings, effect, alpha, geometry)
+    base = keys[effect.reference]
+    return {float(v): base if v == effect.reference else
+            dataclasses.replace(base, **effect.overrides(float(v))) for v in effect.values}
 
 
 def _mesh_stored(forward: ForwardModel, settings: FitSettings, effect: Effect, alpha: float,

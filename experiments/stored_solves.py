@@ -3,13 +3,16 @@
 Platen slip's up-front discretisation correction on the campaign-wide alpha lattice
 (:class:`calib.discover.PlatenSlip`, :func:`calib.discover._mesh_rows`) for the rig's nominal
 sample, 38 x 24 mm, at the default fit settings: every lattice alpha from 1 to ``--alpha-max``,
-each solve on the fitting and on the correction mesh. See :mod:`calib.stored` for why the
-curves hold for any sample of the same aspect ratio and how they are used.
+each solve on the fitting and on the correction mesh; and the rest of slip's table on that
+lattice (its other frictions, on the fitting mesh only; see
+:attr:`calib.discover._GridForwardEffect.grid_on_lattice`). See :mod:`calib.stored` for why
+the curves hold for any sample of the same aspect ratio and how they are used.
 
     python -m experiments.stored_solves [--alpha-max 14] [--workers N]
 
 About 70 CPU seconds per alpha (490 s for the 14 alphas with two workers on 2026-12-07, at
-seven frictions; 50 s per alpha at the five before). A solve that goes unstable before the
+seven frictions; 50 s per alpha at the five before; the table's one friction more, 0.03, adds
+about one). A solve that goes unstable before the
 strain the fits need is left out (the toolkit then solves it, and fails the same way).
 """
 
@@ -21,7 +24,7 @@ import time
 
 import numpy as np
 
-from calib.discover import MESH_ALPHA_STEP, _mesh_keys, make_effect
+from calib.discover import MESH_ALPHA_STEP, _grid_keys, _mesh_keys, make_effect
 from calib.fit import FitSettings, ForwardModel
 from calib.stored import PATH, StoredSolves, normal_key
 from solver import SolverInstability
@@ -40,8 +43,13 @@ def _solve(alpha: float):
     d, h = NOMINAL_MM
     out = []
     for name in EFFECTS:
-        for key in _mesh_keys(settings, make_effect(name), alpha, NOMINAL_MM).values():
-            for scale in (settings.mesh_scale, settings.mesh_correction):
+        effect = make_effect(name)
+        mesh = _mesh_keys(settings, effect, alpha, NOMINAL_MM)
+        grid = [k for k in _grid_keys(settings, effect, alpha, NOMINAL_MM).values()
+                if k not in mesh.values()]
+        for key, scales in [(k, (settings.mesh_scale, settings.mesh_correction))
+                            for k in mesh.values()] + [(k, (settings.mesh_scale,)) for k in grid]:
+            for scale in scales:
                 try:
                     spline = forward.curve(key, scale)
                 except SolverInstability as exc:

@@ -1018,6 +1018,64 @@ def test_slip_table_follows_each_sample_aspect_ratio_from_the_farthest_on_each_s
         np.testing.assert_allclose(one_sided[g], full[g], rtol=0, atol=1e-12, err_msg=str(g))
 
 
+def test_slip_table_is_read_from_the_stored_lattice(layer_a_context, monkeypatch):
+    """Where the campaign's lattice is on the stored aspect ratio (the rig's nominal sample),
+    platen slip's table is read from it: its nodes are the lattice alphas about the base fit's
+    alpha, its rows there cost no solve, and only the sample geometry off the lattice's aspect
+    ratio is solved (at the base fit's alpha). The table agrees with direct solves of each
+    sample's own geometry at the base fit's alpha and half a unit either side. Off the stored
+    aspect ratio, or without the store, the layer keeps its own grid.
+
+    Tolerance 0.2 % of the force: the lattice's spline in alpha and each geometry's
+    difference from it, carried from the base alpha, were up to 0.044 % off at the base
+    alpha and 0.158 % half a unit above it here, on the sample 2.3 % off the lattice's aspect
+    ratio, as its own grid was (0.034 and 0.163 %; on the embedded campaign's layer D, whose
+    samples are within 1.7 % of it, 0.05 % and 0.09-0.18 %). Friction 0.25, read between
+    the tabulated 0.2 and 0.3 where the curves are rough in friction, was 1.1-1.5 % off on
+    either table there, and is not compared here.
+    """
+    import copy
+
+    import calib.discover as D
+    from calib.fit import ForwardModel
+    from calib.parallel import SerialExecutor
+
+    settings = layer_a_context.unit.settings
+    ctx = copy.copy(layer_a_context)
+    for attr in ("shared_mesh", "mesh_geometry", "campaign_geometry", "lattice_geometry"):
+        ctx.__dict__.pop(attr, None)
+    ctx.forward = ForwardModel.for_settings(settings)
+    todo = D._plan_shared_mesh([ctx], settings, ["platen_slip"], None)
+    assert D._solve_shared_mesh(todo, ctx.shared_mesh, settings, SerialExecutor(), False) == 0
+    effect = make_effect("platen_slip")
+    assert effect.grid_geometry(ctx) == ctx.mesh_geometry == (38.0, 24.0)
+    effect.prepare(ctx)
+    nodes, tables, basis = ctx.platen_slip_table
+    assert list(nodes) == effect.mesh_alphas(ctx) == [float(a) for a in range(
+        int(nodes[0]), int(nodes[-1]) + 1)]
+    grid = ctx.grid_alphas(effect.alpha_offsets)
+    assert nodes[0] <= grid[0] and grid[-1] <= nodes[-1] and basis is not None
+    off = (37.6, 24.3)  # the one sample geometry off the nominal aspect ratio
+    solved = sorted(set(effect.geometry_values) | {effect.reference})
+    assert ctx.forward.n_solves == len(solved) and ctx.forward.n_stored > 0
+    assert set(tables) == set(ctx.unit.groups) == {(38.0, 24.0), off}
+    frictions = np.array([0.0, 0.03, 0.1, 0.15])
+    for alpha in (ctx.alpha_ref - 0.5, ctx.alpha_ref, ctx.alpha_ref + 0.5):
+        weights = D._alpha_weights(nodes, basis, alpha)
+        for geometry in tables:
+            fast = np.array([weights @ np.array([t(f) for t in tables[geometry]])
+                             for f in frictions])
+            direct = effect._rows(ctx, alpha, geometry, frictions)
+            np.testing.assert_allclose(fast, direct, rtol=0, atol=2e-3,
+                                       err_msg=f"alpha {alpha:.2f}, {geometry}")
+    # off the stored aspect ratio, or with nothing stored: the layer's own grid
+    other = copy.copy(ctx)
+    other.mesh_geometry = (40.0, 24.0)
+    assert effect.grid_geometry(other) is None
+    monkeypatch.setattr(calib.stored, "stored_solves", lambda: StoredSolves([], [], [], []))
+    assert effect.grid_geometry(ctx) is None
+
+
 @pytest.mark.parametrize("name", [n for n in EFFECTS
                                   if getattr(make_effect(n), "mesh_values", ())])
 def test_up_front_mesh_correction_spans_the_effect_table(name):

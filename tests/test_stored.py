@@ -9,6 +9,7 @@ import pytest
 
 from calib.discover import (
     MESH_GEOMETRY_TOLERANCE,
+    _grid_keys,
     _lattice_geometry,
     _mesh_keys,
     _mesh_stored,
@@ -39,6 +40,9 @@ def test_every_lattice_alpha_of_slip_is_stored_for_the_nominal_sample():
         assert _mesh_stored(forward, settings, slip, float(alpha), NOMINAL), alpha
         # a sample of the same shape, of another size
         assert _mesh_stored(forward, settings, slip, float(alpha), (30.0, 30.0 * 24 / 38)), alpha
+        # and the rest of slip's table on the lattice (its other frictions, fitting mesh)
+        for key in _grid_keys(settings, slip, float(alpha), NOMINAL).values():
+            assert stored_solves().has(key, settings.mesh_scale, forward), (alpha, key)
     assert not _mesh_stored(forward, settings, slip, 15.0, NOMINAL)
     assert not _mesh_stored(forward, settings, slip, 5.0, (38.0, 20.0))
     assert not _mesh_stored(forward, settings, slip, 5.5, NOMINAL)
