@@ -1052,7 +1052,7 @@ class PlatenSlip(_GridForwardEffect):
     # (the one sample geometry on either side of the lattice's aspect ratio) and 13 with
     # friction 0.03 not yet stored, 9.4 s. Against direct solves on each sample's geometry
     # (frictions 0, 0.03, 0.1, 0.15) it was 0.05 % off at the base alpha, up to 0.09 % at 0.5
-    # below and 0.18 % at 0.7 above, where the layer's own grid was 0.04, 0.06 and 0.15 %
+    # below and 0.18 % at 0.7 above, where the layer's own grid was 0.04, 0.10 and 0.15 %
     # off (2026-12-08; tests/test_discover.py holds a generated layer's table to 0.2 %)
     grid_on_lattice = True
     # The Coulomb curves no longer depend on the ramp (the

@@ -1030,7 +1030,8 @@ def test_slip_table_is_read_from_the_stored_lattice(layer_a_context, monkeypatch
     difference from it, carried from the base alpha, were up to 0.044 % off at the base
     alpha and 0.158 % half a unit above it here, on the sample 2.3 % off the lattice's aspect
     ratio, as its own grid was (0.034 and 0.163 %; on the embedded campaign's layer D, whose
-    samples are within 1.7 % of it, 0.05 % and 0.09-0.18 %). Friction 0.25, read between
+    samples are within 1.7 % of it, 0.05 %, 0.09 % half a unit below and 0.18 % 0.7 above).
+    Friction 0.25, read between
     the tabulated 0.2 and 0.3 where the curves are rough in friction, was 1.1-1.5 % off on
     either table there, and is not compared here.
     """
