@@ -1048,9 +1048,10 @@ class PlatenSlip(_GridForwardEffect):
     geometry_values = (0.0, 0.06, 0.15, 0.3, 0.45)
     # the table itself is read from the stored lattice where the campaign's is on the nominal
     # aspect ratio (its Coulomb solves were over half a discovery's grid time: 30.6 s of
-    # layer D's 55 s, 47 solves): on the embedded campaign's layer D it then cost 6 solves
-    # (the one sample geometry on either side of the lattice's aspect ratio) and 13 with
-    # friction 0.03 not yet stored, 9.4 s. Against direct solves on each sample's geometry
+    # layer D's 55 s, 47 solves): on the embedded campaign's layer D it then cost 6 solves,
+    # the sample geometry farthest from the lattice's aspect ratio (its others lie on the same
+    # side or at it) at five frictions and bonded; 13 and 9.4 s with friction 0.03 not yet
+    # stored. Against direct solves on each sample's geometry
     # (frictions 0, 0.03, 0.1, 0.15) it was 0.05 % off at the base alpha, up to 0.09 % at 0.5
     # below and 0.18 % at 0.7 above, where the layer's own grid was 0.04, 0.10 and 0.15 %
     # off (2026-12-08; tests/test_discover.py holds a generated layer's table to 0.2 %)

@@ -11,9 +11,10 @@ the curves hold for any sample of the same aspect ratio and how they are used.
     python -m experiments.stored_solves [--alpha-max 14] [--workers N]
 
 About 70 CPU seconds per alpha (490 s for the 14 alphas with two workers on 2026-12-07, at
-seven frictions; 50 s per alpha at the five before; the table's one friction more, 0.03, adds
-about one). A solve that goes unstable before the
-strain the fits need is left out (the toolkit then solves it, and fails the same way).
+seven frictions; 50 s per alpha at the five before). With the table's one friction more,
+0.03, 316 s with two workers on 2026-12-08, on a machine about twice as fast. A solve that
+goes unstable before the strain the fits need is left out (the toolkit then solves it, and
+fails the same way).
 """
 
 from __future__ import annotations
