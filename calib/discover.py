@@ -930,7 +930,7 @@ class _GridForwardEffect(Effect):
         def side(g):  # exactly similar geometries differ by rounding only
             return 0 if abs(aspect(g)) <= 1e-12 else int(np.sign(aspect(g)))
 
-        ends = {}  # side -> (the geometry farthest from the median's on it, its rows)
+        ends = {}  # side -> (the geometry farthest from the reference's on it, its rows)
         for s in (-1, 1):
             if on := [g for g in groups if side(g) == s]:
                 far = max(on, key=lambda g: abs(aspect(g)))
@@ -949,8 +949,9 @@ class _GridForwardEffect(Effect):
         shifts = {None: 0.0}
         if self.per_geometry:
             # each sample's geometry solved at the alpha nearest the base fit's; at the other
-            # alphas its difference from the median geometry there is carried over (the shape
-            # factor's effect is itself a small correction, its change with alpha second order)
+            # alphas its difference from the table's geometry (the layer's median, or the
+            # lattice's) there is carried over (the shape factor's effect is itself a small
+            # correction, its change with alpha second order)
             if basis is None:
                 i = int(np.argmin(np.abs(np.array(alphas) - ctx.alpha_ref)))
                 at, rows = alphas[i], median[i]
@@ -2537,29 +2538,34 @@ def _mesh_rows(forward: ForwardModel, settings: FitSettings, effect: Effect, alp
                      ratio(key) - ratio(base) for v, key in keys.items()])
 
 
+def _value_keys(settings: FitSettings, effect: Effect, alpha: float, geometry,
+                values) -> dict:
+    """An effect's solves at ``values`` and one alpha on ``geometry``: value -> key.
+
+    Sorted by value; the effect's reference value is the base model's solve (one-term Ogden,
+    the settings' nu and platens; diameter, height in mm), as
+    :meth:`_GridForwardEffect._rows` solves them.
+    """
+    d, h = geometry
+    base = CurveKey(alpha=(float(alpha),), diameter_mm=float(d), height_mm=float(h),
+                    nu=settings.nu, platen=settings.platen)
+    return {float(v): base if v == effect.reference else
+            dataclasses.replace(base, **effect.overrides(float(v)))
+            for v in sorted(set(map(float, values)))}
+
+
 def _mesh_keys(settings: FitSettings, effect: Effect, alpha: float, geometry) -> dict:
     """The solves of :func:`_mesh_rows` (each on the fitting and the finer mesh): value -> key.
 
     Sorted by value; the effect's reference value is the base model's solve.
     """
-    d, h = geometry
-    base = CurveKey(alpha=(float(alpha),), diameter_mm=float(d), height_mm=float(h),
-                    nu=settings.nu, platen=settings.platen)
-    values = sorted(set(effect.mesh_values) | {effect.reference})
-    return {v: base if v == effect.reference else
-            dataclasses.replace(base, **effect.overrides(float(v))) for v in values}
+    return _value_keys(settings, effect, alpha, geometry,
+                       set(effect.mesh_values) | {effect.reference})
 
 
 def _grid_keys(settings: FitSettings, effect: Effect, alpha: float, geometry) -> dict:
-    """The fitting-mesh solves of an effect's table at one alpha: value -> key (sorted).
-
-    As :meth:`_GridForwardEffect._rows` solves them on ``geometry`` (diameter, height in mm);
-    the effect's reference value is the base model's solve.
-    """
-    keys = _mesh_keys(settings, effect, alpha, geometry)
-    base = keys[effect.reference]
-    return {float(v): base if v == effect.reference else
-            dataclasses.replace(base, **effect.overrides(float(v))) for v in effect.values}
+    """The fitting-mesh solves of an effect's table at one alpha: value -> key (sorted)."""
+    return _value_keys(settings, effect, alpha, geometry, effect.values)
 
 
 def _mesh_stored(forward: ForwardModel, settings: FitSettings, effect: Effect, alpha: float,
